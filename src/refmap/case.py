@@ -1,0 +1,121 @@
+"""A complete, validated description of one run: :class:`Case`.
+
+A case bundles the grid, the fluid, the solids, the edge conditions, the numerics, gravity,
+the time span and the output plan.  :meth:`Case.validate` checks every value *before*
+anything is compiled and raises :class:`CaseError` naming the offending value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+
+from refmap.boundary import Boundary
+from refmap.grid import Grid
+from refmap.state import FluidParams, Numerics
+
+
+class CaseError(ValueError):
+    """An invalid case value (raised before any compilation)."""
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    grid: Grid
+    solids: tuple = ()
+    boundary: Boundary = field(default_factory=Boundary)
+    fluid: FluidParams = field(default_factory=FluidParams)
+    numerics: Numerics = field(default_factory=Numerics)
+    gravity: tuple = (0.0, 0.0)
+    t_end: float = 1.0
+    frames: int = 10
+    picture_field: str = "pressure"
+    description: str = ""
+
+    def replace(self, **kw) -> Case:
+        return replace(self, **kw)
+
+    # ------------------------------------------------------------------ validation
+    def validate(self) -> Case:
+        def bad(msg):
+            raise CaseError(f"case {self.name!r}: {msg}")
+
+        if not (isinstance(self.t_end, (int, float)) and math.isfinite(self.t_end) and self.t_end > 0):
+            bad(f"t_end must be a finite number > 0, got {self.t_end!r}")
+        if not (isinstance(self.frames, int) and self.frames >= 1):
+            bad(f"frames must be an integer >= 1, got {self.frames!r}")
+        if len(self.gravity) != 2 or not all(math.isfinite(float(g)) for g in self.gravity):
+            bad(f"gravity must be two finite numbers, got {self.gravity!r}")
+        g = self.grid
+        X, Y = g.mesh("node")
+        h = g.h
+        for k, s in enumerate(self.solids):
+            label = f"solids[{k}] ({s.name!r})"
+            try:
+                s.law.validate()
+            except ValueError as e:
+                bad(f"{label}: {e}")
+            xi_x, xi_y = s.initial_map(X, Y)
+            phi = np.asarray(s.shape(xi_x, xi_y))
+            inside = phi < 0
+            if not inside.any():
+                bad(f"{label}: the shape covers no grid node (too small for n={g.nx}, or outside the domain)")
+            periodic = self.boundary.periodic
+            edge = np.zeros_like(inside)
+            if not periodic[0]:
+                edge[:2, :] = True
+                edge[-2:, :] = True
+            if not periodic[1]:
+                edge[:, :2] = True
+                edge[:, -2:] = True
+            if (inside & edge).any():
+                xb = (float(X[inside].min()), float(X[inside].max()))
+                yb = (float(Y[inside].min()), float(Y[inside].max()))
+                bad(
+                    f"{label}: the shape reaches the domain edge or lies outside the domain "
+                    f"(x in [{xb[0]:.3g}, {xb[1]:.3g}], y in [{yb[0]:.3g}, {yb[1]:.3g}]; domain "
+                    f"[{g.ax}, {g.bx}] x [{g.ay}, {g.by}])"
+                )
+            if inside.sum() < 4:
+                bad(f"{label}: only {int(inside.sum())} grid nodes inside; refine the grid (n={g.nx})")
+            _ = h
+        return self
+
+    def to_dict(self):
+        return {
+            "name": self.name,
+            "grid": {f.name: getattr(self.grid, f.name) for f in fields(self.grid)},
+            "fluid": self.fluid.to_dict(),
+            "numerics": self.numerics.to_dict(),
+            "boundary": self.boundary.to_dict(),
+            "gravity": list(self.gravity),
+            "t_end": self.t_end,
+            "frames": self.frames,
+            "picture_field": self.picture_field,
+            "solids": [
+                {
+                    "name": s.name,
+                    "shape": s.shape.to_dict(),
+                    "law": s.law.to_dict(),
+                    "strain": [list(r) for r in s.strain],
+                    "strain_center": list(s.strain_center),
+                    "velocity": list(s.velocity),
+                    "anchor": None if s.anchor is None else s.anchor.to_dict(),
+                }
+                for s in self.solids
+            ],
+        }
+
+    def build(self):
+        """Validated (model, params) pair."""
+        from refmap.model import Model
+        from refmap.state import Params
+
+        self.validate()
+        model = Model(self.grid, self.solids, self.boundary, self.numerics)
+        params = Params(fluid=self.fluid, laws=tuple(s.law for s in self.solids),
+                        gravity=tuple(float(x) for x in self.gravity))
+        return model, params

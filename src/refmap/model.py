@@ -1,0 +1,509 @@
+"""The blurred-interface RMT step (thesis chapter 4, Algorithm 1) for N solids.
+
+:class:`Model` holds the static description of a case (grid, solids' shapes and anchors,
+edge conditions, numerics); :meth:`Model.step` is a pure function
+``(State, Params) -> (State, StepInfo)`` and :meth:`Model.advance` runs it inside
+``lax.while_loop`` up to a target time.  One step:
+
+1. ENO advection of every reference map (inside each solid and its band);
+2. blend weights H_k = (1 + erf(phi_k / (w h))) / 2 on nodes and corners;
+3. solid stress sigma_k = law_k(F), F = (grad xi_k)^-1, at corners where xi_k is defined;
+4. fluid pressure lambda_f (rho_f / rho0 - 1) everywhere;
+5. fluid viscous stress; mixing sigma = w_f sigma_f + sum_k (1 - H_k) sigma_k and likewise
+   the density (fluid fraction w_f = 1 - sum_k (1 - H_k), see :func:`solid_fractions`);
+6. velocity update (ENO advection, div(sigma) / rho, extra viscosity, body forces,
+   gravity) and fluid-density update (ENO advection and -rho div v);
+7. apply the updates;
+8. edge conditions (ghost nodes, next step) and anchors;
+9. pin each level set to phi0_k(xi_k), extrapolate xi_k into the band and smooth the
+   extrapolated values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import erf
+
+from refmap import extrapolation, levelset
+from refmap.boundary import Boundary, BoundaryConditions
+from refmap.grid import Grid
+from refmap.operators import (
+    advect,
+    corner_average,
+    div_node,
+    divergence_centered,
+    grad_corner,
+    laplacian,
+    node_average,
+)
+from refmap.state import FluidParams, Numerics, Params, State
+
+LIMIT_NAMES = ("viscous", "solid wave", "fluid sound", "convective", "output", "dt_max")
+
+
+@dataclass(frozen=True)
+class Solid:
+    """One solid: its shape in reference coordinates and its material law.
+
+    The initial reference map is ``xi(x, 0) = A (x - c) + c`` with ``A = strain`` (the
+    identity for an unstrained body) and ``c = strain_center``: the body starts in the
+    region {x : shape(xi(x, 0)) < 0}, deformed by F = A^-1.  ``velocity`` is its initial
+    velocity; ``anchor`` an optional :mod:`refmap.anchors` constraint.
+    """
+
+    shape: Any
+    law: Any
+    strain: tuple = ((1.0, 0.0), (0.0, 1.0))
+    strain_center: tuple = (0.0, 0.0)
+    velocity: tuple = (0.0, 0.0)
+    anchor: Any = None
+    name: str = "solid"
+
+    def __post_init__(self):
+        A = np.asarray(self.strain, dtype=float)
+        if A.shape != (2, 2) or not np.all(np.isfinite(A)):
+            raise ValueError(f"solid {self.name!r}: strain must be a finite 2x2 matrix, got {self.strain!r}")
+        if np.linalg.det(A) <= 0:
+            raise ValueError(f"solid {self.name!r}: strain must have a positive determinant, got det={np.linalg.det(A):.4g}")
+        object.__setattr__(self, "strain", tuple(tuple(float(a) for a in r) for r in A))
+        object.__setattr__(self, "strain_center", tuple(float(c) for c in self.strain_center))
+        object.__setattr__(self, "velocity", tuple(float(c) for c in self.velocity))
+
+    def initial_map(self, X, Y):
+        (a, b), (c, d) = self.strain
+        cx, cy = self.strain_center
+        return a * (X - cx) + b * (Y - cy) + cx, c * (X - cx) + d * (Y - cy) + cy
+
+
+class StepInfo(NamedTuple):
+    dt: jax.Array
+    limit: jax.Array  # index into LIMIT_NAMES
+
+
+def solid_fractions(H):
+    """Solid fractions (1 - H_k) and fluid fraction for stacked blend weights H (N, ...).
+
+    Where blur zones of several solids overlap, sum_k (1 - H_k) can exceed 1; the solid
+    fractions are then renormalised to sum to 1 (and the fluid fraction is 0), so the
+    weights always form a partition of unity with every weight in [0, 1].
+    """
+    ws = 1.0 - H
+    total = jnp.sum(ws, axis=0)
+    scale = jnp.where(total > 1.0, 1.0 / jnp.maximum(total, 1e-300), 1.0)
+    ws = ws * scale
+    wf = jnp.clip(1.0 - jnp.sum(ws, axis=0), 0.0, 1.0)
+    return ws, wf
+
+
+class Model:
+    """Static description of a case and the pure step function built from it."""
+
+    def __init__(
+        self,
+        grid: Grid,
+        solids: tuple[Solid, ...] = (),
+        boundary: Boundary | None = None,
+        numerics: Numerics | None = None,
+        body_forces: tuple = (),
+    ):
+        self.grid = grid
+        self.solids = tuple(solids)
+        self.boundary = boundary if boundary is not None else Boundary()
+        self.numerics = numerics if numerics is not None else Numerics()
+        self.body_forces = tuple(body_forces)
+        self.bc = BoundaryConditions(grid, self.boundary)
+        self.h = grid.h
+        X, Y = grid.mesh("node")
+        self._xi0 = np.stack(
+            [np.stack(s.initial_map(X, Y)) for s in self.solids]
+        ) if self.solids else np.zeros((0, 2) + grid.shape())
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def n_solids(self) -> int:
+        return len(self.solids)
+
+    def phi0(self, k: int, xi_k):
+        """phi0_k(xi_k): where solid k's material says its boundary is (thesis eq. 4.27).
+
+        On periodic axes the reference shape is repeated with the period, so a body that
+        crossed an edge (its map jumps by the period there) is still recognised.
+        """
+        shape = self.solids[k].shape
+        X, Y = xi_k[0], xi_k[1]
+        out = shape(X, Y)
+        g = self.grid
+        Lx, Ly = g.bx - g.ax, g.by - g.ay
+        px, py = self.bc.periodic
+        for sx in ((-1, 1) if px else ()):
+            out = jnp.minimum(out, shape(X + sx * Lx, Y))
+        for sy in ((-1, 1) if py else ()):
+            out = jnp.minimum(out, shape(X, Y + sy * Ly))
+        return out
+
+    def _band_tools(self, phi):
+        return dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
+
+    def extrapolate(self, xi, phi):
+        """Extrapolate each solid's map into its band and smooth the extrapolated values."""
+        n = self.numerics
+        h = self.h
+        kw = dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
+        Xn = jnp.asarray(self.grid.mesh("node"))
+
+        def one(xi_k, phi_k):
+            # extrapolate the displacement-like xi - x: identical for affine maps, and
+            # continuous across periodic edges
+            d = xi_k - Xn
+            d = jax.vmap(lambda f: extrapolation.extrapolate_linear(f, phi_k, band=n.band * h, **kw))(d)
+            d = jax.vmap(
+                lambda f: extrapolation.smooth_extrapolated(
+                    f,
+                    phi_k,
+                    band=n.band * h,
+                    coef=n.smooth_coef,
+                    max_sweeps=n.smooth_max_sweeps,
+                    ratio=n.smooth_ratio,
+                    atol=n.smooth_atol,
+                    fixed_sweeps=n.fixed_smooth_sweeps,
+                    **kw,
+                )
+            )(d)
+            return d + Xn
+
+        return jax.vmap(one)(xi, phi)
+
+    def pin(self, phi, xi, dt):
+        n = self.numerics
+        h = self.h
+        rate = jnp.minimum(n.pin_rate * n.pin_substeps * dt, 1.0)
+        out = []
+        for k in range(self.n_solids):
+            psi = self.phi0(k, xi[k])
+            out.append(
+                levelset.pin_levelset(
+                    phi[k],
+                    psi,
+                    self.grid.dx,
+                    self.grid.dy,
+                    rate=rate,
+                    inner=n.pin_inner * h,
+                    outer=(n.band - 1.0) * h,
+                    redistance_iters=n.redistance_iters,
+                    phi_max=n.phi_max * h,
+                    periodic=self.bc.periodic,
+                )
+            )
+        return jnp.stack(out) if out else phi
+
+    # ------------------------------------------------------------------ initial state
+    def initial_state(self, params: Params, redistance_iters: int = 40) -> State:
+        g = self.grid
+        nx, ny = g.shape()
+        xi = jnp.asarray(self._xi0)
+        phis = []
+        for k in range(self.n_solids):
+            psi = self.phi0(k, xi[k])
+            phi_k = levelset.redistance(psi, g.dx, g.dy, redistance_iters, periodic=self.bc.periodic)
+            phis.append(jnp.clip(phi_k, -self.numerics.phi_max * self.h, self.numerics.phi_max * self.h))
+        phi = jnp.stack(phis) if phis else jnp.zeros((0, nx, ny))
+        v = jnp.zeros((2, nx, ny))
+        if self.n_solids:
+            H = 0.5 * (1 + erf(phi / (self.numerics.blur_width * self.h)))
+            ws, _ = solid_fractions(H)
+            for k, s in enumerate(self.solids):
+                v = v + ws[k][None] * jnp.asarray(s.velocity)[:, None, None]
+        rho_f = jnp.full((nx, ny), params.fluid.rho0, dtype=jnp.float64)
+        return State(
+            t=jnp.asarray(0.0, dtype=jnp.float64),
+            step=jnp.asarray(0, dtype=jnp.int64),
+            v=v,
+            rho_f=rho_f,
+            xi=xi,
+            phi=phi,
+        )
+
+    def default_params(self, fluid: FluidParams | None = None, gravity=(0.0, 0.0)) -> Params:
+        return Params(
+            fluid=fluid if fluid is not None else FluidParams(),
+            laws=tuple(s.law for s in self.solids),
+            gravity=tuple(float(x) for x in gravity),
+        )
+
+    # ------------------------------------------------------------------ time step
+    def time_step(self, state: State, params: Params):
+        """Adaptive dt = cfl * min(viscous, solid wave, fluid sound, convective) limits.
+
+        viscous: h^2 rho_min / (4 (eta + extra_viscosity)) (explicit diffusion in 2D with
+        the largest effective kinematic viscosity); solid wave: h / c_L (the fastest
+        small-strain wave of every law); fluid sound: h / sqrt(lambda_f / rho0);
+        convective: h / max|v|.
+        """
+        h = self.h
+        fl = params.fluid
+        rho_min = fl.rho0
+        c_solid = jnp.asarray(1e-30)
+        for law in params.laws:
+            rho_min = jnp.minimum(rho_min, law.rho0)
+            c_solid = jnp.maximum(c_solid, law.wave_speeds()[1])
+        nu = (fl.eta + fl.extra_viscosity) / rho_min
+        vmax = jnp.max(jnp.abs(state.v[0]) + jnp.abs(state.v[1]))
+        limits = jnp.stack(
+            [
+                h * h / (4.0 * jnp.maximum(nu, 1e-30)),
+                h / c_solid,
+                h / fl.sound_speed,
+                h / jnp.maximum(vmax, 1e-30),
+            ]
+        )
+        i = jnp.argmin(limits)
+        dt = self.numerics.cfl * limits[i]
+        if self.numerics.dt_max is not None:
+            use_max = dt > self.numerics.dt_max
+            dt = jnp.where(use_max, self.numerics.dt_max, dt)
+            i = jnp.where(use_max, 5, i)
+        return dt, i
+
+    # ------------------------------------------------------------------ derived fields
+    def derived(self, state: State, params: Params):
+        """Corner and node fields recomputed from the state (stresses, weights, density)."""
+        g = self.grid
+        dx, dy, h = g.dx, g.dy, self.h
+        n = self.numerics
+        fl = params.fluid
+        bc = self.bc
+        vp = bc.pad_velocity(state.v, state.t)
+        rp = bc.pad_density(state.rho_f, state.t)
+        vp1 = vp[:, 1:-1, 1:-1]
+        rp1 = rp[1:-1, 1:-1]
+
+        # fluid stress at corners: pressure from the bottom-left node (as the thesis's code),
+        # viscous part eta * sym(grad v) with the bottom-left-triangle gradient
+        p = fl.lambda_f * (rp1[:-1, :-1] / fl.rho0 - 1.0)
+        ux, uy = grad_corner(vp1[0], dx, dy)
+        vx, vy = grad_corner(vp1[1], dx, dy)
+        sxx_f = -p + fl.eta * ux
+        sxy_f = 0.5 * fl.eta * (uy + vx)
+        syy_f = -p + fl.eta * vy
+
+        out = dict(p_corner=p)
+        N = self.n_solids
+        if N == 0:
+            out.update(sxx=sxx_f, sxy=sxy_f, syy=syy_f, rho=state.rho_f,
+                       wf_c=jnp.ones_like(p), wf_n=jnp.ones_like(state.rho_f))
+            return out
+
+        phip = bc.pad_linear(state.phi)[..., 1:-1, 1:-1]
+        phic = corner_average(phip)
+        w = n.blur_width * h
+        Hc = 0.5 * (1 + erf(phic / w))
+        Hn = 0.5 * (1 + erf(state.phi / w))
+        ws_c, wf_c = solid_fractions(Hc)
+        ws_n, wf_n = solid_fractions(Hn)
+
+        xip = bc.pad_affine(state.xi)[..., 1:-1, 1:-1]
+        Xx, Xy = grad_corner(xip[:, 0], dx, dy)
+        Yx, Yy = grad_corner(xip[:, 1], dx, dy)
+        det = Xx * Yy - Xy * Yx  # det(grad xi) = 1 / J
+        valid = (phic < n.stress_band * h) & (det > 1e-12)
+        safe_det = jnp.where(valid, det, 1.0)
+        # F = (grad xi)^-1
+        F = jnp.stack(
+            [jnp.stack([Yy, -Xy], axis=-1), jnp.stack([-Yx, Xx], axis=-1)], axis=-2
+        ) / safe_det[..., None, None]
+        F = jnp.where(valid[..., None, None], F, jnp.eye(2))
+        sig = []
+        rho_s = []
+        for k, law in enumerate(params.laws):
+            s = law.stress(F[k])
+            s = jnp.where(valid[k][..., None, None], s, 0.0)
+            sig.append(s)
+            rho_s.append(jnp.where(valid[k], law.rho0 * det[k], law.rho0))
+        sig = jnp.stack(sig)
+        rho_s = jnp.stack(rho_s)
+
+        sxx = wf_c * sxx_f + jnp.sum(ws_c * sig[..., 0, 0], axis=0)
+        sxy = wf_c * sxy_f + jnp.sum(ws_c * sig[..., 0, 1], axis=0)
+        syy = wf_c * syy_f + jnp.sum(ws_c * sig[..., 1, 1], axis=0)
+        rho = wf_n * state.rho_f + jnp.sum(ws_n * node_average(rho_s), axis=0)
+        out.update(
+            sxx=sxx, sxy=sxy, syy=syy, rho=rho, F=F, J=jnp.where(valid, 1.0 / safe_det, 1.0),
+            valid=valid, sigma_s=sig, Hc=Hc, Hn=Hn, ws_c=ws_c, ws_n=ws_n, wf_c=wf_c, wf_n=wf_n,
+            phic=phic,
+        )
+        return out
+
+    # ------------------------------------------------------------------ the step
+    def step(self, state: State, params: Params, dt):
+        g = self.grid
+        dx, dy, h = g.dx, g.dy, self.h
+        n = self.numerics
+        fl = params.fluid
+        bc = self.bc
+        t = state.t
+        v, rho_f = state.v, state.rho_f
+
+        d = self.derived(state, params)
+        vp = bc.pad_velocity(v, t)
+        rp = bc.pad_density(rho_f, t)
+
+        # 6. updates of v and rho_f
+        divs = div_node(d["sxx"], d["sxy"], d["syy"], dx, dy)
+        force = divs + fl.extra_viscosity * laplacian(vp, dx, dy, g=2)
+        ctx = dict(state=state, params=params, derived=d, model=self)
+        for term in self.body_forces:
+            force = force + term(ctx)
+        acc = advect(vp, v, dx, dy) + force / d["rho"][None] + jnp.asarray(params.gravity)[:, None, None]
+        drho = advect(rp, v, dx, dy) - rho_f * divergence_centered(vp[0], vp[1], dx, dy, g=2)
+        v_new = v + dt * acc
+        rho_new = rho_f + dt * drho
+
+        if self.n_solids == 0:
+            return state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new)
+
+        # 1. reference-map advection inside each solid and the inner part of its band
+        xip = bc.pad_affine(state.xi)
+        dxi = advect(xip, v, dx, dy)
+        inside = (state.phi < (n.band - 3.0) * h)[:, None]
+        xi_new = jnp.where(inside, state.xi + dt * dxi, state.xi)
+
+        # 8. anchors
+        xi0 = jnp.asarray(self._xi0)
+        for k, s in enumerate(self.solids):
+            if s.anchor is not None:
+                v_new, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])
+                xi_new = xi_new.at[k].set(xk)
+
+        # 9. pin the level sets, then extrapolate and smooth the maps
+        phi_new = self.pin(state.phi, xi_new, dt)
+        xi_new = self.extrapolate(xi_new, phi_new)
+        return state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new, xi=xi_new, phi=phi_new)
+
+    # ------------------------------------------------------------------ loops
+    def advance(self, state: State, params: Params, t_target, max_steps: int = 10**9):
+        """Step until ``t_target`` (the last step is shortened to land on it exactly).
+
+        Stops early if any prognostic field stops being finite or dt collapses.  Returns
+        ``(state, info)`` with info = dict(steps, ok, dt, limit, dt_min, dt_max).
+        """
+
+        def finite(s):
+            return (
+                jnp.all(jnp.isfinite(s.v))
+                & jnp.all(jnp.isfinite(s.rho_f))
+                & jnp.all(jnp.isfinite(s.xi))
+                & jnp.all(jnp.isfinite(s.phi))
+            )
+
+        def cond(c):
+            s, k, ok, *_ = c
+            return (s.t < t_target - 1e-12) & ok & (k < max_steps)
+
+        def body(c):
+            s, k, ok, dt_last, lim_last, dtmin, dtmax = c
+            dt, lim = self.time_step(s, params)
+            rem = t_target - s.t
+            short = rem < dt * (1 + 1e-9)
+            dt = jnp.where(short, rem, dt)
+            lim = jnp.where(short, 4, lim)
+            s2 = self.step(s, params, dt)
+            ok2 = finite(s2) & (dt > 1e-14)
+            return (s2, k + 1, ok2, dt, lim, jnp.minimum(dtmin, dt), jnp.maximum(dtmax, dt))
+
+        z = jnp.asarray(0.0)
+        init = (state, jnp.asarray(0), jnp.asarray(True), z, jnp.asarray(0), jnp.asarray(jnp.inf), z)
+        s, k, ok, dt, lim, dtmin, dtmax = jax.lax.while_loop(cond, body, init)
+        return s, dict(steps=k, ok=ok, dt=dt, limit=lim, dt_min=dtmin, dt_max=dtmax)
+
+    def run_steps(self, state: State, params: Params, n_steps: int, dt=None):
+        """Fixed number of steps with ``lax.scan`` (reverse-differentiable when the
+        smoothing uses fixed sweeps).  ``dt=None`` uses the adaptive step."""
+
+        def body(s, _):
+            d = self.time_step(s, params)[0] if dt is None else dt
+            return self.step(s, params, d), None
+
+        s, _ = jax.lax.scan(body, state, None, length=n_steps)
+        return s
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostics(self, state: State, params: Params):
+        """Scalar diagnostics and per-solid numbers at the current state (jit-able)."""
+        g = self.grid
+        dA = g.cell_area
+        d = self.derived(state, params)
+        v = state.v
+        out = dict(
+            kinetic_energy=0.5 * jnp.sum(d["rho"] * (v[0] ** 2 + v[1] ** 2)) * dA,
+            fluid_mass=jnp.sum(state.rho_f) * dA,
+            max_speed=jnp.max(jnp.sqrt(v[0] ** 2 + v[1] ** 2)),
+            max_pressure=jnp.max(-0.5 * (d["sxx"] + d["syy"])),
+            min_pressure=jnp.min(-0.5 * (d["sxx"] + d["syy"])),
+        )
+        if self.n_solids:
+            inside_c = d["phic"] < 0
+            Jk = d["J"]
+            e_el = 0.0
+            per = []
+            X, Y = g.mesh("node")
+            for k, law in enumerate(params.laws):
+                psi = jax.vmap(jax.vmap(law.psi))(d["F"][k])
+                e_k = jnp.sum(jnp.where(d["valid"][k], d["ws_c"][k] * psi / Jk[k], 0.0)) * dA
+                e_el = e_el + e_k
+                ws = d["ws_n"][k]
+                area = jnp.sum(ws) * dA
+                per.append(
+                    dict(
+                        area=area,
+                        centroid_x=jnp.sum(ws * X) * dA / area,
+                        centroid_y=jnp.sum(ws * Y) * dA / area,
+                        velocity_x=jnp.sum(ws * v[0]) / jnp.sum(ws),
+                        velocity_y=jnp.sum(ws * v[1]) / jnp.sum(ws),
+                        J_min=jnp.min(jnp.where(inside_c[k], Jk[k], jnp.inf)),
+                        J_max=jnp.max(jnp.where(inside_c[k], Jk[k], -jnp.inf)),
+                        elastic_energy=e_k,
+                    )
+                )
+            out["elastic_energy"] = e_el
+            out["solid_area"] = sum(p["area"] for p in per)
+            out["J_min"] = jnp.min(jnp.stack([p["J_min"] for p in per]))
+            out["J_max"] = jnp.max(jnp.stack([p["J_max"] for p in per]))
+            out["solids"] = per
+        return out
+
+    def output_fields(self, state: State, params: Params):
+        """Fields written to each frame (numpy-convertible), with physical names."""
+        d = self.derived(state, params)
+        out = dict(
+            u=state.v[0],
+            v=state.v[1],
+            rho_f=state.rho_f,
+            rho=d["rho"],
+            p_fluid=params.fluid.lambda_f * (state.rho_f / params.fluid.rho0 - 1.0),
+            pressure=-0.5 * (d["sxx"] + d["syy"]),
+            sigma_xx=d["sxx"],
+            sigma_xy=d["sxy"],
+            sigma_yy=d["syy"],
+        )
+        if self.n_solids:
+            out.update(phi=state.phi, xi_x=state.xi[:, 0], xi_y=state.xi[:, 1],
+                       J=jnp.where(d["valid"], d["J"], jnp.nan))
+        return out
+
+
+def check_finite_fields(state: State) -> list[str]:
+    """Names of prognostic fields holding non-finite values (host-side helper)."""
+    bad = []
+    for name in ("v", "rho_f", "xi", "phi"):
+        a = np.asarray(getattr(state, name))
+        if not np.all(np.isfinite(a)):
+            bad.append(name)
+    return bad
+
+
+__all__ = ["Model", "Solid", "StepInfo", "LIMIT_NAMES", "solid_fractions", "check_finite_fields", "field"]
