@@ -43,7 +43,7 @@ from refmap.operators import (
 )
 from refmap.state import FluidParams, Numerics, Params, State
 
-LIMIT_NAMES = ("viscous", "solid wave", "fluid sound", "convective", "output", "dt_max")
+LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max")
 
 
 @dataclass(frozen=True)
@@ -237,26 +237,41 @@ class Model:
 
     # ------------------------------------------------------------------ time step
     def time_step(self, state: State, params: Params):
-        """Adaptive dt = cfl * min(viscous, solid wave, fluid sound, convective) limits.
+        """Adaptive dt = cfl * min(limits); returns (dt, index into LIMIT_NAMES).
 
-        viscous: h^2 rho_min / (4 (eta + extra_viscosity)) (explicit diffusion in 2D with
-        the largest effective kinematic viscosity); solid wave: h / c_L (the fastest
-        small-strain wave of every law); fluid sound: h / sqrt(lambda_f / rho0);
-        convective: h / max|v|.
+        * viscous: h^2 rho_min / (4 (eta + extra_viscosity)), explicit diffusion in 2D with
+          the largest effective kinematic viscosity;
+        * solid wave: h / c_L, the fastest small-strain wave of every law;
+        * wave damping: 2 extra_viscosity / M (M the longitudinal modulus).  Forward Euler
+          amplifies an undamped elastic wave; with the damping nu k^2 of the extra viscosity
+          a mode is stable only if dt <= 2 nu / c^2 = 2 extra_viscosity / M, whatever its
+          wavenumber (measured: the thesis's circle at 64^2 blows up at 2x this limit and runs
+          at 0.6x).  Skipped when the extra viscosity is zero;
+        * fluid sound: h / sqrt(lambda_f / rho0);
+        * convective: h / max(|u| + |v|).
         """
         h = self.h
         fl = params.fluid
         rho_min = fl.rho0
         c_solid = jnp.asarray(1e-30)
+        M_max = jnp.asarray(1e-30)
         for law in params.laws:
             rho_min = jnp.minimum(rho_min, law.rho0)
-            c_solid = jnp.maximum(c_solid, law.wave_speeds()[1])
+            mu, M = law.moduli()
+            c_solid = jnp.maximum(c_solid, jnp.sqrt(M / law.rho0))
+            M_max = jnp.maximum(M_max, M)
         nu = (fl.eta + fl.extra_viscosity) / rho_min
         vmax = jnp.max(jnp.abs(state.v[0]) + jnp.abs(state.v[1]))
+        damping = jnp.where(
+            (fl.extra_viscosity > 0) & (len(params.laws) > 0),
+            2.0 * fl.extra_viscosity / M_max,
+            jnp.inf,
+        )
         limits = jnp.stack(
             [
                 h * h / (4.0 * jnp.maximum(nu, 1e-30)),
                 h / c_solid,
+                damping,
                 h / fl.sound_speed,
                 h / jnp.maximum(vmax, 1e-30),
             ]
@@ -266,7 +281,7 @@ class Model:
         if self.numerics.dt_max is not None:
             use_max = dt > self.numerics.dt_max
             dt = jnp.where(use_max, self.numerics.dt_max, dt)
-            i = jnp.where(use_max, 5, i)
+            i = jnp.where(use_max, LIMIT_NAMES.index("dt_max"), i)
         return dt, i
 
     # ------------------------------------------------------------------ derived fields
@@ -410,7 +425,7 @@ class Model:
             rem = t_target - s.t
             short = rem < dt * (1 + 1e-9)
             dt = jnp.where(short, rem, dt)
-            lim = jnp.where(short, 4, lim)
+            lim = jnp.where(short, LIMIT_NAMES.index("output"), lim)
             s2 = self.step(s, params, dt)
             ok2 = finite(s2) & (dt > 1e-14)
             return (s2, k + 1, ok2, dt, lim, jnp.minimum(dtmin, dt), jnp.maximum(dtmax, dt))

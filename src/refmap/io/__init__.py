@@ -1,0 +1,44 @@
+"""Output of refmap runs: HDF5 frames + XDMF index + metadata + diagnostics, reading them
+back as xarray, and pictures/movies.
+
+Writing::
+
+    with RunWriter("runs/disc", grid, metadata={"params": ..., "argv": sys.argv}) as w:
+        w.write_frame(0, 0.0, {"u": u, "v": v, "phi": phis, "sigma_xx": sxx})
+        w.append_diagnostics({"step": 0, "time": 0.0, "kinetic_energy": ke})
+
+Reading::
+
+    ds = open_run("runs/disc")            # xarray.Dataset over all frames
+    df = open_diagnostics("runs/disc")    # pandas.DataFrame
+    w = derived_field(ds, "vorticity")
+    make_movie("runs/disc", "vorticity", "runs/disc/vorticity.mp4")
+"""
+
+from refmap.io._common import grid_from_attrs
+from refmap.io.pictures import (
+    DERIVED_FIELDS,
+    derived_field,
+    make_movie,
+    plot_field,
+    save_frame_png,
+    save_panel_png,
+)
+from refmap.io.reader import list_frames, open_diagnostics, open_run, read_frame, read_metadata
+from refmap.io.writer import RunWriter
+
+__all__ = [
+    "DERIVED_FIELDS",
+    "RunWriter",
+    "derived_field",
+    "grid_from_attrs",
+    "list_frames",
+    "make_movie",
+    "open_diagnostics",
+    "open_run",
+    "plot_field",
+    "read_frame",
+    "read_metadata",
+    "save_frame_png",
+    "save_panel_png",
+]

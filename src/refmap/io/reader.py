@@ -1,0 +1,243 @@
+"""Reading a run written by :class:`refmap.io.RunWriter` back into Python.
+
+* :func:`read_frame` - one frame file -> ``(time, {name: array}, attrs)``;
+* :func:`open_run` - every readable frame of a run folder -> one ``xarray.Dataset``;
+* :func:`open_diagnostics` - diagnostics.csv -> ``pandas.DataFrame``;
+* :func:`read_metadata` - metadata.json -> dict.
+
+Arrays come back indexed ``[i, j]`` (i along x) like the solver's, whatever the order on
+disk (see :mod:`refmap.io.writer`).  A run can be read while it is still being written:
+frames are moved into place atomically, and files that cannot be read (truncated, corrupt)
+are skipped with a warning rather than failing the whole read.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import xarray as xr
+
+from refmap.grid import Grid
+from refmap.io._common import (
+    DIAGNOSTICS_FILE,
+    FRAME_RE,
+    FRAMES_DIR,
+    METADATA_FILE,
+    TMP_SUFFIX,
+    grid_attrs,
+    grid_from_attrs,
+    to_json,
+)
+
+__all__ = ["read_frame", "open_run", "open_diagnostics", "read_metadata", "list_frames"]
+
+
+def _py(value: Any) -> Any:
+    """h5py attribute value -> plain Python value (scalars unwrapped, bytes decoded)."""
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray) and value.dtype.kind in "OSU":
+        return [_py(v) for v in value.tolist()]
+    return value
+
+
+def read_frame(path: str | os.PathLike) -> tuple[float, dict[str, np.ndarray], dict[str, Any]]:
+    """Read one frame file.
+
+    Returns ``(time, fields, attrs)``: ``fields`` maps each field name to a float64 array
+    indexed ``[i, j]`` (per-solid fields ``[s, i, j]``); ``attrs`` holds the file attributes
+    (time, index, the grid keys nx, ny, ax, bx, ay, by, dx, dy, and whatever extra attrs the
+    writer was given) plus ``"locations"``: ``{name: "node" | "corner"}``.  Raises OSError
+    (or KeyError/ValueError) for a file that is not a complete frame.
+    """
+    with h5py.File(path, "r") as f:
+        attrs = {k: _py(v) for k, v in f.attrs.items()}
+        if "time" not in attrs or "nx" not in attrs:
+            raise ValueError(f"{path} is not a refmap frame file (no time/grid attributes)")
+        fields: dict[str, np.ndarray] = {}
+        locations: dict[str, str] = {}
+        for name, ds in f["fields"].items():
+            arr = np.asarray(ds[()], dtype=np.float64)
+            fields[name] = np.ascontiguousarray(np.swapaxes(arr, -1, -2))
+            locations[name] = _py(ds.attrs["location"])
+    attrs["locations"] = locations
+    return float(attrs["time"]), fields, attrs
+
+
+def list_frames(run_dir: str | os.PathLike) -> list[tuple[int, Path]]:
+    """``(index, path)`` of every ``frames/frame_*.h5`` file, sorted by index (no reading)."""
+    frames_dir = Path(run_dir) / FRAMES_DIR
+    out = []
+    if frames_dir.is_dir():
+        for p in frames_dir.iterdir():
+            m = FRAME_RE.match(p.name)
+            if m and p.is_file():
+                out.append((int(m.group(1)), p))
+    return sorted(out)
+
+
+def read_metadata(run_dir: str | os.PathLike) -> dict:
+    """The content of ``run_dir/metadata.json`` (an empty dict if the file is missing)."""
+    p = Path(run_dir) / METADATA_FILE
+    if not p.is_file():
+        return {}
+    with open(p) as fh:
+        return json.load(fh)
+
+
+def _flat_attrs(meta: dict) -> dict[str, Any]:
+    """Scalars stay as they are; everything else (dicts, lists, None) becomes JSON text."""
+    out = {}
+    for k, v in meta.items():
+        if isinstance(v, (str, bool, int, float)):
+            out[str(k)] = v
+        else:
+            out[str(k)] = to_json(v)
+    return out
+
+
+def open_run(
+    run_dir: str | os.PathLike,
+    fields: list[str] | tuple[str, ...] | None = None,
+) -> xr.Dataset:
+    """Load every readable frame of a run folder into one ``xarray.Dataset``.
+
+    Dimensions: ``time``; ``x``, ``y`` (the nx x ny nodes / cell centres); ``xc``, ``yc``
+    (the corners); ``solid`` for per-solid fields.  Node fields have dims ``(time, x, y)``
+    or ``(time, solid, x, y)``, corner fields ``(time, xc, yc)`` or
+    ``(time, solid, xc, yc)``; each variable has attrs ``location`` and ``per_solid``.
+    Coordinates: ``time``, ``index`` (frame index, along time), ``x``, ``y``, ``xc``,
+    ``yc``, ``solid``.  ``ds.attrs`` holds metadata.json (values that are not str/int/
+    float/bool are stored as JSON strings) and the grid keys nx, ny, ax, bx, ay, by, dx, dy
+    (which take precedence over metadata keys of the same name; those are kept as
+    ``metadata.<key>``).  Use :func:`refmap.io.grid_from_attrs` to rebuild the Grid.
+
+    Frames are ordered by index.  Unreadable frame files, frames on a different grid, and
+    leftover ``*.tmp`` files are skipped with a ``UserWarning``.  A field missing from some
+    frames is NaN there.  ``fields`` restricts loading to the given names.
+    Raises FileNotFoundError if the folder holds no readable frame.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"no run folder {run_dir}")
+    frames_dir = run_dir / FRAMES_DIR
+    leftovers = (
+        sorted(p.name for p in frames_dir.glob(f"*{TMP_SUFFIX}")) if frames_dir.is_dir() else []
+    )
+    if leftovers:
+        warnings.warn(
+            f"ignoring {len(leftovers)} temporary file(s) in {frames_dir} (a frame being "
+            f"written, or left by an interrupted run): {leftovers[:5]}",
+            UserWarning,
+            stacklevel=2,
+        )
+
+    wanted = None if fields is None else set(fields)
+    loaded: list[tuple[int, float, dict[str, np.ndarray], dict[str, str]]] = []
+    grid: Grid | None = None
+    for index, path in list_frames(run_dir):
+        try:
+            time, data, attrs = read_frame(path)
+            g = grid_from_attrs(attrs)
+        except Exception as exc:  # a partial or corrupt file must not hide the others
+            warnings.warn(f"skipping unreadable frame {path}: {exc}", UserWarning, stacklevel=2)
+            continue
+        if grid is None:
+            grid = g
+        elif g != grid:
+            warnings.warn(
+                f"skipping frame {path}: its grid {g} differs from {grid}",
+                UserWarning,
+                stacklevel=2,
+            )
+            continue
+        locs = attrs["locations"]
+        if wanted is not None:
+            data = {k: v for k, v in data.items() if k in wanted}
+        loaded.append((int(attrs.get("index", index)), time, data, locs))
+    if grid is None:
+        raise FileNotFoundError(f"no readable frame in {frames_dir}")
+    loaded.sort(key=lambda t: t[0])
+    if wanted is not None:
+        present = set().union(*(d.keys() for _, _, d, _ in loaded))
+        missing = sorted(wanted - present)
+        if missing:
+            raise KeyError(f"fields {missing} are in no frame of {run_dir}")
+
+    # union of the fields, in order of first appearance
+    order: dict[str, tuple[str, int]] = {}  # name -> (location, nsolid or 0)
+    for _, _, data, locs in loaded:
+        for name, arr in data.items():
+            nsolid = arr.shape[0] if arr.ndim == 3 else 0
+            loc = locs[name]
+            if name in order:
+                old_loc, old_n = order[name]
+                if old_loc != loc or (old_n == 0) != (nsolid == 0):
+                    raise ValueError(f"field {name!r} changes location or rank between frames")
+                order[name] = (loc, max(old_n, nsolid))
+            else:
+                order[name] = (loc, nsolid)
+    nsolid_all = max([n for _, n in order.values()], default=0)
+
+    nt = len(loaded)
+    data_vars = {}
+    for name, (loc, nsolid) in order.items():
+        sdims = ("x", "y") if loc == "node" else ("xc", "yc")
+        shape2 = grid.shape(loc)
+        if nsolid:
+            dims = ("time", "solid", *sdims)
+            buf = np.full((nt, nsolid_all, *shape2), np.nan)
+        else:
+            dims = ("time", *sdims)
+            buf = np.full((nt, *shape2), np.nan)
+        for t, (_, _, data, _) in enumerate(loaded):
+            arr = data.get(name)
+            if arr is None:
+                continue
+            if nsolid:
+                buf[t, : arr.shape[0]] = arr
+            else:
+                buf[t] = arr
+        data_vars[name] = xr.Variable(dims, buf, attrs={"location": loc, "per_solid": bool(nsolid)})
+
+    x, y = grid.axes("node")
+    xc, yc = grid.axes("corner")
+    coords = {
+        "time": ("time", np.array([t for _, t, _, _ in loaded], dtype=np.float64)),
+        "index": ("time", np.array([i for i, _, _, _ in loaded], dtype=np.int64)),
+        "x": ("x", x, {"long_name": "x of cell centres (nodes)"}),
+        "y": ("y", y, {"long_name": "y of cell centres (nodes)"}),
+        "xc": ("xc", xc, {"long_name": "x of cell corners"}),
+        "yc": ("yc", yc, {"long_name": "y of cell corners"}),
+    }
+    if nsolid_all:
+        coords["solid"] = ("solid", np.arange(nsolid_all))
+
+    attrs = _flat_attrs(read_metadata(run_dir))
+    for k, v in grid_attrs(grid).items():
+        if k in attrs and attrs[k] != v:
+            attrs[f"metadata.{k}"] = attrs[k]
+        attrs[k] = v
+    return xr.Dataset(data_vars=data_vars, coords=coords, attrs=attrs)
+
+
+def open_diagnostics(run_dir: str | os.PathLike):
+    """Read ``run_dir/diagnostics.csv`` into a ``pandas.DataFrame`` (one row per step).
+
+    A last line cut short by a crash is tolerated (missing cells become NaN; a malformed
+    line is dropped with a warning).
+    """
+    import pandas as pd
+
+    p = Path(run_dir) / DIAGNOSTICS_FILE
+    if not p.is_file():
+        raise FileNotFoundError(f"no diagnostics file {p}")
+    return pd.read_csv(p, on_bad_lines="warn")

@@ -1,0 +1,449 @@
+"""Writing a run to disk: one HDF5 file per saved frame, an XDMF index for ParaView/VisIt,
+the run's metadata and a CSV of per-step diagnostics.
+
+Folder layout::
+
+    run_dir/
+        metadata.json          caller's metadata + "created" (UTC, ISO 8601) + "grid"
+        diagnostics.csv        one row per append_diagnostics() call
+        run.xdmf               XDMF 3 temporal collection over every frame written so far
+        frames/frame_00000.h5  one file per write_frame() call
+        frames/frame_00001.h5
+        ...
+
+Frame file layout (HDF5)::
+
+    /            attrs: format, layout, time, index, nx, ny, ax, bx, ay, by, dx, dy,
+                        plus the caller's extra attrs
+    /x, /y       node (cell-centre) axes, lengths nx and ny
+    /xc, /yc     corner axes, lengths nx+1 and ny+1
+    /fields/<name>  float64, attrs location ("node"|"corner"), per_solid (bool), dims
+    /xdmf/zero_<loc>  zeros used only as the third velocity component in run.xdmf
+
+Axis order on disk.  The solver's arrays are indexed ``[i, j]`` (i along x).  XDMF and
+ParaView read a structured block with x varying fastest, i.e. a C-ordered ``[j, i]`` array,
+and an XDMF HyperSlab can select but cannot transpose.  So each field is stored *transposed
+in its last two axes*: a node field of shape ``(nx, ny)`` is saved as an ``(ny, nx)``
+dataset, a per-solid corner field ``(nsolid, nx+1, ny+1)`` as ``(nsolid, ny+1, nx+1)``.  The
+dataset attribute ``dims`` spells this out (e.g. ``"solid yc xc"``) and
+:func:`refmap.io.read_frame` / :func:`refmap.io.open_run` undo the transpose, so Python users
+always get ``[i, j]`` arrays back.  With this layout the XDMF description is direct: the
+2DCoRectMesh has ``Dimensions="ny+1 nx+1"``, ``Origin="ay ax"``, ``Spacing="dy dx"`` (XDMF
+lists the slowest axis first), corner fields are ``Center="Node"`` attributes of shape
+``(ny+1, nx+1)`` and node fields ``Center="Cell"`` attributes of shape ``(ny, nx)``.
+Per-solid fields appear in the XDMF as ``name_0``, ``name_1``, ... through HyperSlabs of the
+3D dataset.  When scalar fields ``u`` and ``v`` exist at the same location, a 3-component
+``velocity`` vector (u, v, 0) is added with an XDMF ``JOIN`` function.
+
+Every file is written under a temporary name in its final folder and then moved into place
+with ``os.replace``; killing the process mid-write leaves at most a ``*.tmp`` file, never a
+half-written file under a final name.
+"""
+
+from __future__ import annotations
+
+import csv
+import operator
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from refmap.grid import Grid
+from refmap.io._common import (
+    DIAGNOSTICS_FILE,
+    FORMAT,
+    FRAME_RE,
+    FRAMES_DIR,
+    METADATA_FILE,
+    RESERVED_FRAME_ATTRS,
+    TMP_SUFFIX,
+    XDMF_FILE,
+    atomic_write_bytes,
+    frame_name,
+    grid_attrs,
+    infer_location,
+    to_json,
+)
+
+__all__ = ["RunWriter", "build_xdmf"]
+
+
+def _compression_options(compression: str | None, level: int) -> dict:
+    if compression is None:
+        return {}
+    if compression == "gzip":
+        return {"compression": "gzip", "compression_opts": int(level), "shuffle": True}
+    if compression == "lzf":
+        return {"compression": "lzf", "shuffle": True}
+    raise ValueError(f"compression must be 'gzip', 'lzf' or None, got {compression!r}")
+
+
+@dataclass(frozen=True)
+class _FieldRecord:
+    name: str
+    location: str  # "node" | "corner"
+    nsolid: int  # 0 for an ordinary 2D field
+
+
+@dataclass(frozen=True)
+class _FrameRecord:
+    index: int
+    time: float
+    relpath: str  # relative to run_dir, forward slashes
+    fields: tuple[_FieldRecord, ...]
+    velocity_zero: str | None  # dataset path of the zero component, or None
+
+
+def _disk_dims(location: str, per_solid: bool) -> str:
+    base = "y x" if location == "node" else "yc xc"
+    return f"solid {base}" if per_solid else base
+
+
+def _h5_attr_value(value: Any) -> Any:
+    """Turn a caller attribute into something h5py stores natively (else a JSON string)."""
+    if isinstance(value, (str, bool, int, float, np.generic)):
+        return value
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biuf":
+        return value
+    if isinstance(value, (list, tuple)):
+        arr = np.asarray(value)
+        if arr.dtype.kind in "biuf" and arr.ndim >= 1:
+            return arr
+    if hasattr(value, "__array__") and not isinstance(value, (dict, list, tuple)):
+        arr = np.asarray(value)
+        if arr.dtype.kind in "biuf":
+            return arr.item() if arr.ndim == 0 else arr
+    return to_json(value)
+
+
+def _csv_value(value: Any) -> Any:
+    if value is None:
+        return ""
+    if isinstance(value, np.generic):
+        return value.item()
+    if hasattr(value, "__array__") and not isinstance(value, (str, bytes)):
+        arr = np.asarray(value)
+        if arr.ndim == 0:
+            return arr.item()
+        return to_json(arr)
+    return value
+
+
+class RunWriter:
+    """Writes the output of one simulation run into ``run_dir``.
+
+    Parameters
+    ----------
+    run_dir:
+        Output folder.  Created if missing.  If it exists and is not empty a
+        ``FileExistsError`` is raised, unless ``overwrite=True``, in which case the files
+        this class owns (metadata.json, run.xdmf, diagnostics.csv, frames/frame_*.h5 and
+        leftover ``*.tmp`` files) are deleted first; anything else in the folder is kept.
+    grid:
+        The :class:`~refmap.grid.Grid` every frame lives on.
+    metadata:
+        Anything JSON-able that describes the run (input parameters, package versions,
+        command line, ...).  Saved as metadata.json together with the creation time
+        (``"created"``) and the grid (``"grid"``, unless the caller already supplied one).
+        numpy values, paths, dataclasses and pydantic models are converted.
+    compression, compression_level:
+        HDF5 filter for the field datasets: ``"gzip"`` (default, level 1, with byte
+        shuffling; readable by ParaView/VisIt), ``"lzf"`` (faster, but only h5py reads it)
+        or None (fastest, largest).  Full-precision float64 data shrink little, smooth or
+        mostly constant fields (level sets far away, stresses outside the solids) a lot.
+
+    The writer is also a context manager; leaving the ``with`` block calls :meth:`close`.
+    See the module docstring for the file layout and the axis order on disk.
+    """
+
+    def __init__(
+        self,
+        run_dir: str | os.PathLike,
+        grid: Grid,
+        metadata: dict | None = None,
+        *,
+        overwrite: bool = False,
+        compression: str | None = "gzip",
+        compression_level: int = 1,
+    ):
+        self.run_dir = Path(run_dir)
+        self.grid = grid
+        self.frames_dir = self.run_dir / FRAMES_DIR
+        self._compression = _compression_options(compression, compression_level)
+        self._frames: dict[int, _FrameRecord] = {}
+        self._diag_file = None
+        self._diag_writer = None
+        self._diag_header: list[str] | None = None
+        self._closed = False
+
+        if self.run_dir.exists():
+            if not self.run_dir.is_dir():
+                raise FileExistsError(f"{self.run_dir} exists and is not a folder")
+            if any(self.run_dir.iterdir()):
+                if not overwrite:
+                    raise FileExistsError(
+                        f"run folder {self.run_dir} is not empty; pass overwrite=True to replace "
+                        "its run files"
+                    )
+                self._remove_own_files()
+        self.frames_dir.mkdir(parents=True, exist_ok=True)
+
+        meta = dict(metadata or {})
+        meta["created"] = datetime.now(UTC).isoformat(timespec="seconds")
+        meta.setdefault("grid", grid_attrs(grid))
+        self.metadata = meta
+        atomic_write_bytes(
+            self.run_dir / METADATA_FILE,
+            (to_json(meta, indent=2, sort_keys=False) + "\n").encode(),
+            fsync=True,
+        )
+
+    # ------------------------------------------------------------------ housekeeping
+    def _remove_own_files(self) -> None:
+        for name in (METADATA_FILE, XDMF_FILE, DIAGNOSTICS_FILE):
+            p = self.run_dir / name
+            if p.is_file():
+                p.unlink()
+        for p in self.run_dir.glob(f".*{TMP_SUFFIX}"):
+            if p.is_file():
+                p.unlink()
+        if self.frames_dir.is_dir():
+            for p in self.frames_dir.iterdir():
+                if p.is_file() and (FRAME_RE.match(p.name) or p.name.endswith(TMP_SUFFIX)):
+                    p.unlink()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError(f"RunWriter for {self.run_dir} is closed")
+
+    @property
+    def frame_indices(self) -> list[int]:
+        """Indices of the frames written by this writer, in increasing order."""
+        return sorted(self._frames)
+
+    # ------------------------------------------------------------------ frames
+    def write_frame(
+        self,
+        index: int,
+        time: float,
+        fields: dict[str, Any],
+        attrs: dict | None = None,
+    ) -> Path:
+        """Save one snapshot as ``frames/frame_{index:05d}.h5`` and refresh run.xdmf.
+
+        ``fields`` maps names to arrays indexed ``[i, j]``: node fields ``(nx, ny)``, corner
+        fields ``(nx+1, ny+1)``, per-solid fields with a leading solid axis.  A 3D array is
+        always taken as per-solid, so vector fields must be split into components (``u``,
+        ``v``) first.  Values are stored as float64.  Any other shape raises ValueError naming
+        the field.  ``attrs`` are extra scalar/array/string attributes for the file (other
+        values are stored as JSON strings); they may not reuse the reserved names time,
+        index, format, layout or the grid keys.  Writing an index again replaces that frame.
+        Returns the path of the frame file.
+        """
+        self._check_open()
+        index = operator.index(index)
+        if index < 0:
+            raise ValueError(f"frame index must be >= 0, got {index}")
+        time = float(time)
+        attrs = dict(attrs or {})
+        clash = sorted(RESERVED_FRAME_ATTRS.intersection(attrs))
+        if clash:
+            raise ValueError(f"frame attrs use reserved names: {clash}")
+
+        prepared: list[tuple[_FieldRecord, np.ndarray]] = []
+        for name, value in fields.items():
+            if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
+                raise ValueError(f"invalid field name {name!r}")
+            arr = np.asarray(value, dtype=np.float64)
+            location, per_solid = infer_location(self.grid, name, arr.shape)
+            disk = np.ascontiguousarray(np.swapaxes(arr, -1, -2))
+            prepared.append((_FieldRecord(name, location, arr.shape[0] if per_solid else 0), disk))
+
+        by_name = {rec.name: rec for rec, _ in prepared}
+        zero_loc = None
+        u, v = by_name.get("u"), by_name.get("v")
+        if u and v and u.nsolid == 0 and v.nsolid == 0 and u.location == v.location:
+            zero_loc = u.location
+
+        final = self.frames_dir / frame_name(index)
+        fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=TMP_SUFFIX, dir=self.frames_dir)
+        os.close(fd)
+        try:
+            with h5py.File(tmp, "w") as f:
+                f.attrs["format"] = FORMAT
+                f.attrs["layout"] = "fields stored transposed in the last two axes: [..., j, i]"
+                f.attrs["time"] = time
+                f.attrs["index"] = index
+                for k, val in grid_attrs(self.grid).items():
+                    f.attrs[k] = val
+                for k, val in attrs.items():
+                    f.attrs[str(k)] = _h5_attr_value(val)
+                x, y = self.grid.axes("node")
+                xc, yc = self.grid.axes("corner")
+                for k, val in (("x", x), ("y", y), ("xc", xc), ("yc", yc)):
+                    f.create_dataset(k, data=val)
+                g = f.create_group("fields")
+                for rec, disk in prepared:
+                    ds = g.create_dataset(rec.name, data=disk, **self._compression)
+                    ds.attrs["location"] = rec.location
+                    ds.attrs["per_solid"] = bool(rec.nsolid)
+                    ds.attrs["dims"] = _disk_dims(rec.location, bool(rec.nsolid))
+                if zero_loc is not None:
+                    shape = self.grid.shape(zero_loc)[::-1]
+                    f.create_group("xdmf").create_dataset(
+                        f"zero_{zero_loc}", data=np.zeros(shape), **self._compression
+                    )
+            os.replace(tmp, final)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+
+        self._frames[index] = _FrameRecord(
+            index=index,
+            time=time,
+            relpath=f"{FRAMES_DIR}/{final.name}",
+            fields=tuple(rec for rec, _ in prepared),
+            velocity_zero=f"/xdmf/zero_{zero_loc}" if zero_loc else None,
+        )
+        self._write_xdmf()
+        return final
+
+    def _write_xdmf(self) -> None:
+        records = [self._frames[i] for i in sorted(self._frames)]
+        atomic_write_bytes(self.run_dir / XDMF_FILE, build_xdmf(self.grid, records).encode())
+
+    # ------------------------------------------------------------------ diagnostics
+    def append_diagnostics(self, row: dict) -> None:
+        """Append one row to diagnostics.csv and flush it to the OS right away.
+
+        The first row fixes the columns (its keys, in order).  Later rows may leave columns
+        out (written empty) but may not add new ones (ValueError).  numpy/JAX scalars are
+        converted to Python numbers; floats are written with full precision.
+        """
+        self._check_open()
+        if self._diag_writer is None:
+            self._diag_header = [str(k) for k in row]
+            self._diag_file = open(self.run_dir / DIAGNOSTICS_FILE, "w", newline="")
+            self._diag_writer = csv.writer(self._diag_file)
+            self._diag_writer.writerow(self._diag_header)
+        extra = [k for k in row if str(k) not in self._diag_header]
+        if extra:
+            raise ValueError(
+                f"diagnostics row has columns {extra} that the first row did not have "
+                f"(columns: {self._diag_header})"
+            )
+        values = {str(k): v for k, v in row.items()}
+        self._diag_writer.writerow([_csv_value(values.get(k)) for k in self._diag_header])
+        self._diag_file.flush()
+
+    # ------------------------------------------------------------------ closing
+    def close(self) -> None:
+        """Close the diagnostics file.  Safe to call more than once."""
+        if self._diag_file is not None:
+            self._diag_file.close()
+            self._diag_file = None
+            self._diag_writer = None
+        self._closed = True
+
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"RunWriter({str(self.run_dir)!r}, frames={len(self._frames)})"
+
+
+# ---------------------------------------------------------------------- XDMF
+def _data_item(parent: ET.Element, dims: tuple[int, ...], text: str, fmt: str = "HDF") -> None:
+    item = ET.SubElement(
+        parent,
+        "DataItem",
+        Format=fmt,
+        NumberType="Float",
+        Precision="8",
+        Dimensions=" ".join(str(d) for d in dims),
+    )
+    item.text = text
+
+
+def _scalar_attribute(parent, name, center, dims, ref) -> None:
+    attr = ET.SubElement(parent, "Attribute", Name=name, AttributeType="Scalar", Center=center)
+    _data_item(attr, dims, ref)
+
+
+def _hyperslab_attribute(parent, name, center, dims, nsolid, k, ref) -> None:
+    attr = ET.SubElement(parent, "Attribute", Name=name, AttributeType="Scalar", Center=center)
+    slab = ET.SubElement(
+        attr,
+        "DataItem",
+        ItemType="HyperSlab",
+        Type="HyperSlab",
+        Dimensions=" ".join(str(d) for d in dims),
+    )
+    sel = ET.SubElement(slab, "DataItem", Format="XML", NumberType="Int", Dimensions="3 3")
+    sel.text = f"{k} 0 0  1 1 1  1 {dims[0]} {dims[1]}"
+    _data_item(slab, (nsolid, *dims), ref)
+
+
+def build_xdmf(grid: Grid, frames) -> str:
+    """Return the XDMF 3 text of a temporal collection over ``frames``.
+
+    ``frames`` are the writer's frame records (index, time, relative path, fields).  The
+    mesh of every frame is the 2DCoRectMesh of the grid's corners; see the module docstring
+    for the axis order.
+    """
+    root = ET.Element("Xdmf", Version="3.0")
+    domain = ET.SubElement(root, "Domain")
+    coll = ET.SubElement(
+        domain, "Grid", Name="run", GridType="Collection", CollectionType="Temporal"
+    )
+    cdims = (grid.ny + 1, grid.nx + 1)
+    ndims = (grid.ny, grid.nx)
+    for fr in frames:
+        g = ET.SubElement(coll, "Grid", Name=f"frame_{fr.index:05d}", GridType="Uniform")
+        ET.SubElement(g, "Time", Value=repr(float(fr.time)))
+        ET.SubElement(
+            g, "Topology", TopologyType="2DCoRectMesh", Dimensions=f"{cdims[0]} {cdims[1]}"
+        )
+        geo = ET.SubElement(g, "Geometry", GeometryType="ORIGIN_DXDY")
+        _data_item(geo, (2,), f"{float(grid.ay)!r} {float(grid.ax)!r}", fmt="XML")
+        _data_item(geo, (2,), f"{float(grid.dy)!r} {float(grid.dx)!r}", fmt="XML")
+        for rec in fr.fields:
+            center, dims = ("Node", cdims) if rec.location == "corner" else ("Cell", ndims)
+            ref = f"{fr.relpath}:/fields/{rec.name}"
+            if rec.nsolid:
+                for k in range(rec.nsolid):
+                    _hyperslab_attribute(g, f"{rec.name}_{k}", center, dims, rec.nsolid, k, ref)
+            else:
+                _scalar_attribute(g, rec.name, center, dims, ref)
+        if fr.velocity_zero is not None:
+            loc = next(r.location for r in fr.fields if r.name == "u")
+            center, dims = ("Node", cdims) if loc == "corner" else ("Cell", ndims)
+            attr = ET.SubElement(
+                g, "Attribute", Name="velocity", AttributeType="Vector", Center=center
+            )
+            fun = ET.SubElement(
+                attr,
+                "DataItem",
+                ItemType="Function",
+                Function="JOIN($0, $1, $2)",
+                Dimensions=f"{dims[0]} {dims[1]} 3",
+            )
+            _data_item(fun, dims, f"{fr.relpath}:/fields/u")
+            _data_item(fun, dims, f"{fr.relpath}:/fields/v")
+            _data_item(fun, dims, f"{fr.relpath}:{fr.velocity_zero}")
+    ET.indent(root, space="  ")
+    body = ET.tostring(root, encoding="unicode")
+    return '<?xml version="1.0" ?>\n<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>\n' + body + "\n"
