@@ -59,12 +59,12 @@ class PivotAnchor:
 
     def apply(self, grid: Grid, v, xi, xi0):
         X, Y = grid.mesh("node")
-        x = jnp.asarray(X - self.center[0])
-        y = jnp.asarray(Y - self.center[1])
-        r2 = x * x + y * y
-        fit = r2 < self.fit_radius**2
-        if not np.any(np.asarray(r2) < self.fit_radius**2):
+        xn, yn = X - self.center[0], Y - self.center[1]
+        r2n = xn * xn + yn * yn
+        if not np.any(r2n < self.fit_radius**2):
             raise ValueError(f"pivot fit_radius {self.fit_radius} holds no grid node; refine the grid")
+        x, y, r2 = jnp.asarray(xn), jnp.asarray(yn), jnp.asarray(r2n)
+        fit = jnp.asarray(r2n < self.fit_radius**2)
         u, w = v[0], v[1]
         omega = jnp.sum(jnp.where(fit, x * w - y * u, 0.0)) / jnp.sum(jnp.where(fit, r2, 0.0))
         Xr = xi[0] - self.center[0]
@@ -73,7 +73,7 @@ class PivotAnchor:
         cyx = jnp.sum(jnp.where(fit, Yr * x - Xr * y, 0.0))
         theta = jnp.arctan2(cyx, cxx)
         c, s = jnp.cos(theta), jnp.sin(theta)
-        hold = r2 < self.hold_radius**2
+        hold = jnp.asarray(r2n < self.hold_radius**2)
         v = jnp.where(hold, jnp.stack([-omega * y, omega * x]), v)
         xi_rot = jnp.stack([c * x - s * y + self.center[0], s * x + c * y + self.center[1]])
         xi = jnp.where(hold, xi_rot, xi)

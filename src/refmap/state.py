@@ -18,8 +18,27 @@ import jax.numpy as jnp
 
 
 def _register(cls, data):
+    """Register a frozen dataclass as a pytree whose treedef carries the class itself.
+
+    (``jax.tree_util.register_dataclass`` treedefs of two classes with the same number of
+    fields can compare equal in the installed JAX, which confuses jit caches.)
+    """
+    data = list(data)
     meta = [f.name for f in fields(cls) if f.name not in data]
-    return jax.tree_util.register_dataclass(cls, data_fields=list(data), meta_fields=meta)
+
+    def flatten(obj):
+        return [getattr(obj, n) for n in data], tuple(getattr(obj, n) for n in meta)
+
+    def unflatten(aux, children):
+        obj = object.__new__(cls)
+        for n, v in zip(data, children, strict=True):
+            object.__setattr__(obj, n, v)
+        for n, v in zip(meta, aux, strict=True):
+            object.__setattr__(obj, n, v)
+        return obj
+
+    jax.tree_util.register_pytree_node(cls, flatten, unflatten)
+    return cls
 
 
 @dataclass(frozen=True)
