@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -30,7 +31,8 @@ class RegionAnchor:
 
     def mask(self, grid: Grid) -> np.ndarray:
         X, Y = grid.mesh("node")
-        return np.asarray(self.region(X, Y)) < 0
+        with jax.ensure_compile_time_eval():  # a constant mask, even when called under jit
+            return np.asarray(self.region(X, Y)) < 0
 
     def apply(self, grid: Grid, v, xi, xi0):
         m = jnp.asarray(self.mask(grid))

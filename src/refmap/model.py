@@ -43,7 +43,7 @@ from refmap.operators import (
 )
 from refmap.state import FluidParams, Numerics, Params, State
 
-LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max")
+LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max", "fixed")
 
 
 @dataclass(frozen=True)
@@ -246,7 +246,9 @@ class Model:
           amplifies an undamped elastic wave; with the damping nu k^2 of the extra viscosity
           a mode is stable only if dt <= 2 nu / c^2 = 2 extra_viscosity / M, whatever its
           wavenumber (measured: the thesis's circle at 64^2 blows up at 2x this limit and runs
-          at 0.6x).  Skipped when the extra viscosity is zero;
+          at 0.6x); likewise 2 (eta + extra_viscosity) / lambda_f for sound in the fluid.
+          A limit whose viscosity is zero is skipped (forward Euler then slowly amplifies
+          waves at any dt, so inviscid runs need some viscosity);
         * fluid sound: h / sqrt(lambda_f / rho0);
         * convective: h / max(|u| + |v|).
         """
@@ -267,6 +269,9 @@ class Model:
             2.0 * fl.extra_viscosity / M_max,
             jnp.inf,
         )
+        # the same bound for sound waves in the fluid, damped by eta and the extra viscosity
+        nu_f = fl.eta + fl.extra_viscosity
+        damping = jnp.minimum(damping, jnp.where(nu_f > 0, 2.0 * nu_f / fl.lambda_f, jnp.inf))
         limits = jnp.stack(
             [
                 h * h / (4.0 * jnp.maximum(nu, 1e-30)),
@@ -278,6 +283,8 @@ class Model:
         )
         i = jnp.argmin(limits)
         dt = self.numerics.cfl * limits[i]
+        if self.numerics.dt_fixed is not None:
+            return jnp.asarray(self.numerics.dt_fixed, dtype=jnp.float64), jnp.asarray(LIMIT_NAMES.index("fixed"))
         if self.numerics.dt_max is not None:
             use_max = dt > self.numerics.dt_max
             dt = jnp.where(use_max, self.numerics.dt_max, dt)
@@ -428,7 +435,12 @@ class Model:
             lim = jnp.where(short, LIMIT_NAMES.index("output"), lim)
             s2 = self.step(s, params, dt)
             ok2 = finite(s2) & (dt > 1e-14)
-            return (s2, k + 1, ok2, dt, lim, jnp.minimum(dtmin, dt), jnp.maximum(dtmax, dt))
+            # report the last full step (the landing step is only a remainder)
+            keep = short & (k > 0)
+            dt_rep = jnp.where(keep, dt_last, dt)
+            lim_rep = jnp.where(keep, lim_last, lim)
+            dtmin = jnp.where(short, dtmin, jnp.minimum(dtmin, dt))
+            return (s2, k + 1, ok2, dt_rep, lim_rep, dtmin, jnp.maximum(dtmax, dt))
 
         z = jnp.asarray(0.0)
         init = (state, jnp.asarray(0), jnp.asarray(True), z, jnp.asarray(0), jnp.asarray(jnp.inf), z)

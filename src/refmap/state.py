@@ -103,7 +103,9 @@ class Numerics:
 
     Defaults follow the thesis: blur width 2h (H = (1 + erf(phi / (2h))) / 2), reference map
     extrapolated ~6h out, pinning speed k = 5 with 10 sub-steps where phi > -5h, smoothing
-    of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.
+    of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.  ``cfl`` scales
+    the adaptive time step; ``dt_fixed`` replaces it by a constant (convergence studies,
+    differentiable runs), ``dt_max`` caps it.
     """
 
     blur_width: float = 2.0
@@ -120,6 +122,7 @@ class Numerics:
     fixed_smooth_sweeps: int | None = None
     cfl: float = 0.5
     dt_max: float | None = None
+    dt_fixed: float | None = None
     phi_max: float = 12.0
 
     def __post_init__(self):
@@ -139,8 +142,10 @@ class Numerics:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 0:
                 raise ValueError(f"numerics {name} must be an integer >= 0, got {v!r}")
-        if self.dt_max is not None and not (self.dt_max > 0):
-            raise ValueError(f"numerics dt_max must be > 0, got {self.dt_max!r}")
+        for name in ("dt_max", "dt_fixed"):
+            v = getattr(self, name)
+            if v is not None and not (v > 0):
+                raise ValueError(f"numerics {name} must be > 0, got {v!r}")
 
     def to_dict(self):
         return {f.name: getattr(self, f.name) for f in fields(self)}
