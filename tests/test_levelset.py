@@ -1,10 +1,11 @@
-import refmap  # noqa: F401  (first: enables float64)
+"""Tests for refmap.levelset: re-distancing, pinning to phi0(xi), normals, blur weight."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import refmap  # noqa: F401  (enables float64 before any array is made)
 from refmap.grid import Grid
 from refmap.levelset import heaviside_blur, pin_levelset, redistance, unit_normal
 
@@ -124,9 +125,7 @@ def test_redistance_linear_field_is_fixed(grid64):
 def test_redistance_jit_and_batch(grid64):
     g = grid64
     X, Y = g.mesh()
-    phis = jnp.asarray(
-        np.stack([(np.hypot(X, Y) - 0.8) * 2.0, (np.hypot(X - 0.5, Y) - 0.6) * 0.5])
-    )
+    phis = jnp.asarray(np.stack([(np.hypot(X, Y) - 0.8) * 2.0, (np.hypot(X - 0.5, Y) - 0.6) * 0.5]))
     f = jax.jit(redistance, static_argnames=("iters", "periodic"))
     out = f(phis, g.dx, g.dy, iters=25)
     ref0 = redistance(phis[0], g.dx, g.dy, 25)

@@ -159,8 +159,11 @@ def test_scenario_short_run(name):
     inside = np.asarray(dd["phic"][0]) < -2 * model.h
     cb = 0.25 * (sxx[:-1, :-1] - sxx[1:, :-1] - sxx[:-1, 1:] + sxx[1:, 1:])
     blk = inside[:-1, :-1] & inside[1:, 1:] & inside[1:, :-1] & inside[:-1, 1:]
-    rng = np.ptp(sxx[inside]) + 1e-12
-    assert np.abs(cb[blk]).max() < 0.1 * rng
+    # (a floor of 1e-4 G covers runs whose loads are still tiny; a checkerboard
+    # instability grows exponentially past both bounds)
+    rng = np.ptp(sxx[inside])
+    G = float(params.laws[0].G)
+    assert np.abs(cb[blk]).max() < 0.1 * rng + 1e-4 * G
 
 
 def test_circle_relaxes_and_loses_energy():

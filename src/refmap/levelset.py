@@ -57,7 +57,9 @@ def _neighbours(a, axis: int, periodic: bool, edge: str = "linear", fill=0):
 
 def _check_shape(phi):
     if phi.ndim < 2 or phi.shape[-1] < 2 or phi.shape[-2] < 2:
-        raise ValueError(f"expected a node field of shape (..., nx, ny) with nx, ny >= 2, got {phi.shape}")
+        raise ValueError(
+            f"expected a node field of shape (..., nx, ny) with nx, ny >= 2, got {phi.shape}"
+        )
 
 
 def unit_normal(phi, dx, dy, periodic: Periodic = (False, False)):
@@ -89,7 +91,9 @@ def heaviside_blur(phi, width):
     return 0.5 * (1 + erf(jnp.asarray(phi) / width))
 
 
-def redistance(phi, dx, dy, iters: int, periodic: Periodic = (False, False)):
+def redistance(
+    phi, dx, dy, iters: int, periodic: Periodic = (False, False), freeze_interface: bool = False
+):
     """Re-distance ``phi`` by ``iters`` pseudo-time steps of ``phi_t + S(phi0)(|grad phi| - 1) = 0``.
 
     Sussman-Smereka-Osher re-initialisation with the first-order Godunov upwind Hamiltonian
@@ -115,6 +119,11 @@ def redistance(phi, dx, dy, iters: int, periodic: Periodic = (False, False)):
         dx, dy: grid spacings.
         iters: number of pseudo-time steps (static).
         periodic: static (x, y) wrap flags; otherwise linear-extrapolation ghost nodes.
+        freeze_interface: keep the nodes next to the zero contour exactly as given and
+            re-distance only the others from them.  Used when re-distancing every time
+            step: applying the sub-cell fix at every step accumulates grid-scale wiggles of
+            the interface (measured on the rotor: rms of lap(phi) near the interface 9.1
+            with the fix every step, 2.2 without re-distancing, a smooth contour frozen).
 
     Returns:
         The re-distanced level set, same shape as ``phi``.
@@ -155,6 +164,8 @@ def redistance(phi, dx, dy, iters: int, periodic: Periodic = (False, False)):
         gy2_neg = jnp.maximum(jnp.minimum(c, 0.0) ** 2, jnp.maximum(d, 0.0) ** 2)
         g2 = jnp.where(positive, gx2_pos + gy2_pos, gx2_neg + gy2_neg)
         far = p - dtau * sign * (jnp.sqrt(g2 + _TINY) - 1)
+        if freeze_interface:
+            return jnp.where(near, p, far)
         close = p - relax * (sign * jnp.abs(p) - dist)
         return jnp.where(near, close, far)
 
@@ -181,9 +192,10 @@ def pin_levelset(
     1. ``phi <- phi + rate (psi - phi)`` where ``-inner < phi < outer`` (elsewhere unchanged);
        ``rate`` in [0, 1] is the caller's ``k * n_sub * dt`` (thesis: k = 5, 10 sub-steps,
        zone ``phi > -5 dx``); ``rate = 1`` copies ``psi`` into the zone;
-    2. re-distance with ``redistance_iters`` iterations of :func:`redistance` (keeps the
-       zero contour of step 1, restores ``|grad phi| = 1`` near it, since ``psi`` is only a
-       distance where the solid is unstrained);
+    2. re-distance with ``redistance_iters`` iterations of :func:`redistance`, the nodes
+       next to the zero contour frozen (so the contour is exactly that of step 1, smooth
+       because psi is), restoring ``|grad phi| = 1`` away from it, since ``psi`` is only a
+       distance where the solid is unstrained;
     3. clip to ``[-phi_max, phi_max]`` (values far from any interface are not needed).
 
     Shapes ``(..., nx, ny)``; ``psi`` must broadcast to ``phi``.  ``rate``, ``inner``,
@@ -192,7 +204,7 @@ def pin_levelset(
     phi = jnp.asarray(phi)
     zone = (phi > -inner) & (phi < outer)
     phi = jnp.where(zone, phi + rate * (psi - phi), phi)
-    phi = redistance(phi, dx, dy, redistance_iters, periodic)
+    phi = redistance(phi, dx, dy, redistance_iters, periodic, freeze_interface=True)
     return jnp.clip(phi, -phi_max, phi_max)
 
 
