@@ -158,22 +158,20 @@ class Model:
 
         def one(xi_k, phi_k):
             # extrapolate the displacement-like xi - x: identical for affine maps, and
-            # continuous across periodic edges
-            d = xi_k - Xn
-            d = jax.vmap(lambda f: extrapolation.extrapolate_linear(f, phi_k, band=n.band * h, **kw))(d)
-            d = jax.vmap(
-                lambda f: extrapolation.smooth_extrapolated(
-                    f,
-                    phi_k,
-                    band=n.band * h,
-                    coef=n.smooth_coef,
-                    max_sweeps=n.smooth_max_sweeps,
-                    ratio=n.smooth_ratio,
-                    atol=n.smooth_atol,
-                    fixed_sweeps=n.fixed_smooth_sweeps,
-                    **kw,
-                )
-            )(d)
+            # continuous across periodic edges; both components share one phi (and so the
+            # geometric pre-pass of the extrapolation)
+            d = extrapolation.extrapolate_linear(xi_k - Xn, phi_k[None], band=n.band * h, **kw)
+            d = extrapolation.smooth_extrapolated(
+                d,
+                phi_k[None],
+                band=n.band * h,
+                coef=n.smooth_coef,
+                max_sweeps=n.smooth_max_sweeps,
+                ratio=n.smooth_ratio,
+                atol=n.smooth_atol,
+                fixed_sweeps=n.fixed_smooth_sweeps,
+                **kw,
+            )
             return d + Xn
 
         return jax.vmap(one)(xi, phi)
