@@ -36,16 +36,22 @@ def _thesis_solid_law():
     return NeoHookean(G=10.0, kappa=10.0, rho0=1.0)
 
 
-@scenario("circle", "a sheared, stretched disc released in a closed box; relaxes and emits pressure waves")
+@scenario("circle", "a sheared disc released in a closed box; relaxes to a circle and emits pressure waves")
 def circle(n: int = 128) -> Case:
-    # The thesis's code builds the level set |(0.8 x' + 0.5 y, y)| - 0.8 with x' = x - 0.5.
-    # We read it as a disc of radius 0.8 in reference coordinates carried by the initial map
-    # xi = A (x - c) + c, A = [[0.8, 0.5], [0, 1]]: a strained state (J = 1.25 plus shear).
+    # The thesis's code builds the level set |(0.8 x' + 0.5 y, y)| - 0.8 with x' = x - 0.5
+    # and sets xi = x: an unstrained sheared ellipse, which would not move.  We read the
+    # intent ("a disc released from a strained state") as a disc in reference coordinates
+    # carried by an initial map xi = A (x - c) + c, an isochoric (J = 1) shear-and-stretch
+    # A = [[0.9, 0.2], [0, 1]] / sqrt(0.9).  The thesis's own matrix [[0.8, 0.5], [0, 1]]
+    # drives the surrounding fluid (sound speed 1, while the solid's shear waves travel at
+    # 3.2) at Mach ~1.7; the resulting shocks are beyond this non-shock-capturing scheme
+    # at 128^2 (it blows up at t ~ 0.4; see docs/method.md).
     c = (0.5, 0.0)
+    a = 1.0 / math.sqrt(0.9)
     solid = Solid(
         shape=Disc(center=c, radius=0.8),
         law=_thesis_solid_law(),
-        strain=((0.8, 0.5), (0.0, 1.0)),
+        strain=((0.9 * a, 0.2 * a), (0.0, a)),
         strain_center=c,
         name="disc",
     )

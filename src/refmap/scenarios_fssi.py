@@ -1,0 +1,165 @@
+"""Fluid-solid-solid scenarios (thesis section 4.11): several soft solids in one fluid, with
+contact (:class:`refmap.contact.Contact`).
+
+Importing this module registers three scenarios with :func:`refmap.scenarios.scenario`:
+
+* ``two_balls`` -- an anchored ball and a mobile ball pressed together by a flow entering
+  from the left (thesis Fig. 4-32);
+* ``ball_stick`` -- a ball thrown at a stick anchored at its foot; it bends the stick,
+  bounces off and falls back under weak gravity (thesis Figs. 4-33 to 4-35);
+* ``settle`` -- five soft balls of different sizes and densities 1.5-2 settling under
+  gravity onto the floor of a closed box and piling up.
+
+Common parameters are the thesis's: domain [-2, 2]^2, compressible neo-Hookean solids with
+G = kappa = 10 (density 1 unless stated), fluid rho_f0 = 1, lambda_f = 1, eta = 0.12, extra
+viscosity 0.02.
+
+A :class:`refmap.case.Case` has no field for body forces yet, so the scenarios return a
+:class:`ContactCase`: a Case with one more field, ``contact``, whose ``build()`` passes it
+to ``Model(body_forces=...)``.  Everything that takes a Case (``Simulation``, the CLI once
+the scenarios are registered) therefore runs them with contact.  If ``Case`` itself gains
+the ``contact`` field (the change proposed in ``docs/fssi.md``), ``ContactCase`` is simply
+``Case``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from refmap.anchors import RegionAnchor
+from refmap.boundary import Boundary, Segment
+from refmap.case import Case
+from refmap.contact import Contact
+from refmap.geometry import Capsule, Disc
+from refmap.grid import Grid
+from refmap.materials import NeoHookean
+from refmap.model import Solid
+from refmap.scenarios import DESCRIPTIONS, scenario
+from refmap.state import FluidParams, Numerics
+
+__all__ = ["ContactCase", "build", "two_balls", "ball_stick", "settle"]
+
+if "contact" in {f.name for f in fields(Case)}:  # Case already carries a contact term
+    ContactCase = Case
+else:
+
+    @dataclass(frozen=True)
+    class ContactCase(Case):
+        """A :class:`Case` with a contact body force (``None``: no contact)."""
+
+        contact: Contact | None = None
+
+        def to_dict(self):
+            d = super().to_dict()
+            d["contact"] = None if self.contact is None else self.contact.to_dict()
+            return d
+
+        def build(self):
+            """Validated (model, params) pair, the model carrying the contact force."""
+            return build(self, self.contact)
+
+
+def build(case: Case, contact: Contact | None = None):
+    """(model, params) of ``case`` with ``contact`` (if not None) as a body force.
+
+    Works on any Case, with or without a ``contact`` field; ``contact`` overrides it.
+    """
+    from refmap.model import Model
+    from refmap.state import Params
+
+    case.validate()
+    if contact is None:
+        contact = getattr(case, "contact", None)
+    forces = (contact,) if contact is not None else ()
+    model = Model(case.grid, case.solids, case.boundary, case.numerics, body_forces=forces)
+    params = Params(fluid=case.fluid, laws=tuple(s.law for s in case.solids),
+                    gravity=tuple(float(x) for x in case.gravity))
+    return model, params
+
+
+def _law(rho0: float = 1.0):
+    return NeoHookean(G=10.0, kappa=10.0, rho0=rho0)
+
+
+@scenario("two_balls", "an anchored and a mobile soft ball pressed together by a flow entering from the left")
+def two_balls(n: int = 128) -> Case:
+    # The anchored ball is held by its centre (radius 0.2 of 0.5), so its rim deforms freely.
+    # The flow (u = 0.3, ramped up over t = 1, prescribed on the left and right edges as in
+    # the thesis's stick case, free slip top and bottom) carries the mobile ball onto it.
+    fixed = Solid(
+        shape=Disc(center=(0.55, 0.0), radius=0.5),
+        law=_law(),
+        anchor=RegionAnchor(Disc(center=(0.55, 0.0), radius=0.2)),
+        name="anchored ball",
+    )
+    mobile = Solid(shape=Disc(center=(-0.75, 0.1), radius=0.5), law=_law(), name="mobile ball")
+    flow = Segment("velocity", velocity=(0.3, 0.0), ramp=1.0)
+    return ContactCase(
+        name="two_balls",
+        grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
+        solids=(fixed, mobile),
+        boundary=Boundary(left=(flow,), right=(flow,), bottom="slip", top="slip"),
+        fluid=FluidParams(),
+        t_end=20.0,
+        frames=50,
+        description=DESCRIPTIONS["two_balls"],
+        contact=Contact(),
+    )
+
+
+@scenario("ball_stick", "a soft ball thrown at a stick anchored at its foot; bends it, bounces off, falls back")
+def ball_stick(n: int = 128) -> Case:
+    # A stick (capsule, half-length 1.0, radius 0.25) anchored at its foot near the floor of a
+    # closed box; a ball of radius 0.4 thrown at its upper half at speed 1.2 (it loses about
+    # half of it to the fluid it sets moving); weak gravity g = 0.2 brings it back down.
+    stick = Solid(
+        shape=Capsule(center=(0.6, -0.6), half_length=1.0, radius=0.25, angle=math.pi / 2),
+        law=_law(),
+        anchor=RegionAnchor(Disc(center=(0.6, -1.55), radius=0.22)),
+        name="stick",
+    )
+    ball = Solid(shape=Disc(center=(-1.1, 0.3), radius=0.4), law=_law(), velocity=(1.2, 0.0), name="ball")
+    return ContactCase(
+        name="ball_stick",
+        grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
+        solids=(stick, ball),
+        boundary=Boundary(),
+        fluid=FluidParams(),
+        gravity=(0.0, -0.2),
+        t_end=12.0,
+        frames=60,
+        description=DESCRIPTIONS["ball_stick"],
+        contact=Contact(),
+    )
+
+
+# (centre, radius, density) of the settling balls
+SETTLE_BALLS = (
+    ((-1.05, -0.55), 0.55, 1.5),
+    ((0.35, -0.75), 0.6, 2.0),
+    ((1.3, 0.05), 0.45, 1.8),
+    ((-0.55, 0.85), 0.45, 1.7),
+    ((0.75, 1.2), 0.4, 2.0),
+)
+
+
+@scenario("settle", "five soft balls of different sizes and densities settling under gravity and piling up")
+def settle(n: int = 128) -> Case:
+    solids = tuple(
+        Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"ball{k} (r={r:g}, rho={rho:g})")
+        for k, (c, r, rho) in enumerate(SETTLE_BALLS)
+    )
+    return ContactCase(
+        name="settle",
+        grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
+        solids=solids,
+        boundary=Boundary(),
+        fluid=FluidParams(),
+        numerics=Numerics(),
+        gravity=(0.0, -1.0),
+        t_end=15.0,
+        frames=60,
+        description=DESCRIPTIONS["settle"],
+        contact=Contact(),
+    )
