@@ -85,6 +85,24 @@ class StepInfo(NamedTuple):
     limit: jax.Array  # index into LIMIT_NAMES
 
 
+def _solid_stresses(laws, F):
+    """Stress of every solid, (N, ..., 2, 2), and the reference densities (N,).
+
+    Solids sharing one law class are stacked into one pytree and processed with ``vmap``
+    (one traced code path whatever their number); mixed classes fall back to a loop.
+    """
+    if len({type(law) for law in laws}) == 1 and len(laws) > 1:
+        try:
+            stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws)
+        except (ValueError, TypeError):
+            stacked = None
+        if stacked is not None:
+            sig = jax.vmap(lambda law, f: law.stress(f))(stacked, F)
+            return sig, jnp.asarray(stacked.rho0, dtype=F.dtype)
+    sig = jnp.stack([law.stress(F[k]) for k, law in enumerate(laws)])
+    return sig, jnp.stack([jnp.asarray(law.rho0, dtype=F.dtype) for law in laws])
+
+
 def solid_fractions(H):
     """Solid fractions (1 - H_k) and fluid fraction for stacked blend weights H (N, ...).
 
@@ -337,15 +355,10 @@ class Model:
             [jnp.stack([Yy, -Xy], axis=-1), jnp.stack([-Yx, Xx], axis=-1)], axis=-2
         ) / safe_det[..., None, None]
         F = jnp.where(valid[..., None, None], F, jnp.eye(2))
-        sig = []
-        rho_s = []
-        for k, law in enumerate(params.laws):
-            s = law.stress(F[k])
-            s = jnp.where(valid[k][..., None, None], s, 0.0)
-            sig.append(s)
-            rho_s.append(jnp.where(valid[k], law.rho0 * det[k], law.rho0))
-        sig = jnp.stack(sig)
-        rho_s = jnp.stack(rho_s)
+        sig, rho0 = _solid_stresses(params.laws, F)
+        sig = jnp.where(valid[..., None, None], sig, 0.0)
+        rho0 = rho0[:, None, None]
+        rho_s = jnp.where(valid, rho0 * det, rho0)
 
         sxx = wf_c * sxx_f + jnp.sum(ws_c * sig[..., 0, 0], axis=0)
         sxy = wf_c * sxy_f + jnp.sum(ws_c * sig[..., 0, 1], axis=0)

@@ -76,10 +76,23 @@ class Simulation:
 
     ``progress`` shows a tqdm bar in simulated time (steps/s, ETA); ``pictures`` writes PNG
     snapshots in the thesis's style at the end; ``movie`` an MP4 of the picture field.
+
+    ``checkpoint_every`` (frames, default 1; None: only at the end and on Ctrl-C) writes
+    ``checkpoint.h5`` into the run folder (see :mod:`refmap.checkpoint`); a run stopped by
+    Ctrl-C checkpoints its last completed frame.  :meth:`resume` continues a run folder from
+    its checkpoint, bit for bit as if it had never stopped.
     """
 
     def __init__(self, case: Case, out_dir=None, progress: bool = True, pictures: bool = True,
-                 movie: bool = False, overwrite: bool = False, command: str | None = None):
+                 movie: bool = False, overwrite: bool = False, command: str | None = None,
+                 checkpoint_every: int | None = 1):
+        if checkpoint_every is not None and (isinstance(checkpoint_every, bool)
+                                             or not isinstance(checkpoint_every, int)
+                                             or checkpoint_every < 1):
+            raise ValueError(f"checkpoint_every must be an integer >= 1 or None, got {checkpoint_every!r}")
+        self.checkpoint_every = checkpoint_every
+        self._resume_from = None  # set by Simulation.resume
+        self._done = None  # counters of the last completed frame (for checkpoints)
         self.case = case.validate()
         self.model, self.params = case.build()
         self.out_dir = Path(out_dir) if out_dir is not None else None
@@ -104,28 +117,55 @@ class Simulation:
             writer.append_diagnostics(row)
         return row
 
-    def run(self):
+    def run(self, on_frame=None):
+        """Run to ``case.t_end``, or from the checkpoint to the end after :meth:`resume`.
+
+        ``on_frame(index, state)``, if given, is called after each frame is written (and
+        checkpointed).  Returns the final State.
+        """
         case = self.case
         writer = None
-        if self.out_dir is not None:
+        resumed = self._resume_from
+        if self.out_dir is not None and resumed is None:
             from refmap.io import RunWriter
 
             meta = {"case": case.to_dict(), "versions": versions(), "command": self.command}
             writer = RunWriter(self.out_dir, case.grid, meta, overwrite=self.overwrite)
-        state = self.model.initial_state(self.params)
-        t0 = _time.perf_counter()
-        info0 = {"step": 0, "dt": 0.0, "limit": 0, "steps_in_frame": 0}
-        self._write(writer, 0, state, info0, 0.0)
-        times = np.linspace(0.0, case.t_end, case.frames + 1)[1:]
+        elif self.out_dir is not None:
+            writer = self._reopen_for_resume(resumed)
+        if resumed is None:
+            state = self.model.initial_state(self.params)
+            t0 = _time.perf_counter()
+            info0 = {"step": 0, "dt": 0.0, "limit": 0, "steps_in_frame": 0}
+            self._write(writer, 0, state, info0, 0.0)
+            times = np.linspace(0.0, case.t_end, case.frames + 1)[1:]
+            first, total_steps = 1, 0
+            self._dt_stats = (float("inf"), 0.0)
+            self._diag_rows_base = -len(self.rows) + 1
+        else:
+            state = resumed["state"]
+            t0 = _time.perf_counter() - float(resumed["wall_time_s"])
+            times = np.asarray(resumed["frame_times"], dtype=np.float64)
+            first, total_steps = int(resumed["next_frame"]), int(resumed["total_steps"])
+            dmin, dmax = resumed.get("dt_min"), resumed.get("dt_max")
+            self._dt_stats = (float("inf") if dmin is None else float(dmin), 0.0 if dmax is None else float(dmax))
+            self._diag_rows_base = int(resumed["diag_rows"]) - len(self.rows)
+        self._frame_times = [float(x) for x in times]
+        last = (resumed["last_dt"], resumed["last_limit"]) if resumed is not None else (0.0, "")
+        self._mark_done(first - 1, state, total_steps, t0, *last)
+        if writer is not None and resumed is None and self._checkpoint_due(0, len(times)):
+            self.save_checkpoint()
         bar = None
         if self.progress:
             from tqdm.auto import tqdm
 
             bar = tqdm(total=float(case.t_end), unit="t", desc=f"{case.name} {case.grid.nx}x{case.grid.ny}",
-                       bar_format="{l_bar}{bar}| t={n:.3f}/{total:.3f} [{elapsed}<{remaining}{postfix}]")
-        total_steps = 0
+                       bar_format="{l_bar}{bar}| t={n:.3f}/{total:.3f} [{elapsed}<{remaining}{postfix}]",
+                       initial=float(state.t) if resumed is not None else 0)
         try:
             for i, tf in enumerate(times, start=1):
+                if i < first:
+                    continue
                 ts = _time.perf_counter()
                 new, info = self._advance(state, self.params, float(tf))
                 info = jax.device_get(info)
@@ -137,12 +177,26 @@ class Simulation:
                 rinfo = {"step": int(state.step), "dt": float(info["dt"]), "limit": int(info["limit"]),
                          "steps_in_frame": steps}
                 self._write(writer, i, state, rinfo, _time.perf_counter() - t0)
+                self._dt_stats = (min(self._dt_stats[0], float(info["dt_min"])),
+                                  max(self._dt_stats[1], float(info["dt_max"])))
+                self._mark_done(i, state, total_steps, t0, rinfo["dt"], LIMIT_NAMES[rinfo["limit"]])
+                if writer is not None and self._checkpoint_due(i, len(times)):
+                    self.save_checkpoint()
+                if on_frame is not None:
+                    on_frame(i, state)
                 if bar is not None:
                     el = _time.perf_counter() - ts
                     bar.set_postfix_str(
                         f"{steps / max(el, 1e-9):.0f} steps/s, dt={float(info['dt']):.2e} ({LIMIT_NAMES[int(info['limit'])]})"
                     )
                     bar.update(float(tf) - bar.n)
+        except KeyboardInterrupt:
+            if writer is not None and self._done is not None:
+                path = self.save_checkpoint()
+                d = self._done
+                print(f"\ninterrupted: checkpoint of frame {d['frame_index']} (t = {d['t']:.6g}) written "
+                      f"to {path}; continue with `refmap resume {self.out_dir}`", file=sys.stderr)
+            raise
         finally:
             if bar is not None:
                 bar.close()
@@ -158,6 +212,124 @@ class Simulation:
 
             make_movie(self.out_dir, case.picture_field, self.out_dir / f"{case.picture_field}.mp4")
         return state
+
+    # ------------------------------------------------------------------ checkpoint / restart
+    def _mark_done(self, index, state, total_steps, t0, last_dt, last_limit):
+        """Remember the counters of the last completed frame (one assignment, so a Ctrl-C
+        never sees half of them)."""
+        dmin, dmax = self._dt_stats
+        self._done = {
+            "frame_index": int(index),
+            "next_frame": int(index) + 1,
+            "t": float(state.t),
+            "step": int(state.step),
+            "total_steps": int(total_steps),
+            "diag_rows": len(self.rows) + self._diag_rows_base,
+            "wall_time_s": _time.perf_counter() - t0,
+            "last_dt": float(last_dt),
+            "last_limit": str(last_limit),
+            "dt_min": dmin if np.isfinite(dmin) else None,
+            "dt_max": dmax if dmax > 0 else None,
+            "state": state,
+        }
+
+    def _checkpoint_due(self, index, n_frames):
+        every = self.checkpoint_every
+        return index == n_frames or (every is not None and index % every == 0)
+
+    def save_checkpoint(self):
+        """Write ``checkpoint.h5`` for the last completed frame; returns its path."""
+        from refmap.checkpoint import save_checkpoint
+
+        if self.out_dir is None or self._done is None:
+            raise RuntimeError("nothing to checkpoint (no run folder, or no frame completed yet)")
+        if getattr(self, "_versions", None) is None:
+            self._versions = versions()
+        d = dict(self._done)
+        state = d.pop("state")
+        d.update(
+            frame_times=list(self._frame_times),
+            t_end=float(self.case.t_end),
+            frames=int(self.case.frames),
+            checkpoint_every=self.checkpoint_every,
+            case=self.case.to_dict(),
+            scenario={"name": self.case.name, "n": int(self.case.grid.nx)},
+            versions=self._versions,
+            command=self.command,
+        )
+        return save_checkpoint(self.out_dir, state, d)
+
+    def _reopen_for_resume(self, resumed):
+        from datetime import UTC, datetime
+
+        from refmap.checkpoint import note_resume, reopen_run_writer
+
+        writer = reopen_run_writer(self.out_dir, self.case.grid, int(resumed["next_frame"]),
+                                   int(resumed["diag_rows"]))
+        note_resume(self.out_dir, self.case.to_dict(), {
+            "resumed": datetime.now(UTC).isoformat(timespec="seconds"),
+            "from_frame": int(resumed["next_frame"]) - 1,
+            "from_t": float(resumed["t"]),
+            "checkpoint_file": resumed.get("checkpoint_file"),
+            "command": self.command,
+            "versions": versions(),
+        })
+        return writer
+
+    @classmethod
+    def resume(cls, run_dir, *, case: Case | None = None, t_end: float | None = None,
+               frames: int | None = None, progress: bool = True, pictures: bool = True,
+               movie: bool = False, command: str | None = None,
+               checkpoint_every: int | None = 1) -> Simulation:
+        """A Simulation that continues ``run_dir`` from its checkpoint; call ``.run()``.
+
+        The case is rebuilt from the checkpoint (see :func:`refmap.checkpoint.rebuild_case`;
+        pass ``case=`` for a user-defined case built in Python).  Without ``t_end``/``frames``
+        the run continues on its original output schedule and ends exactly as an
+        uninterrupted run would, bit for bit.  ``t_end`` (and optionally ``frames``, the
+        number of intervals from 0 to ``t_end``; default: the same frame spacing) extends
+        the run: frames already written are kept, the remaining ones follow the new
+        schedule.  Frames written after the checkpoint are recomputed.
+        """
+        from refmap.case import CaseError
+        from refmap.checkpoint import CheckpointError, load_checkpoint, rebuild_case
+        from refmap.io import read_metadata
+
+        run_dir = Path(run_dir)
+        state, info = load_checkpoint(run_dir)
+        case = rebuild_case(info, read_metadata(run_dir), case)
+        schedule = [float(x) for x in info["frame_times"]]
+        nxt = int(info["next_frame"])
+        t_now = float(state.t)
+        if t_end is not None or frames is not None:
+            new_t_end = float(case.t_end if t_end is None else t_end)
+            if frames is None:
+                frames = max(1, int(round(new_t_end * case.frames / case.t_end)))
+            case.replace(t_end=new_t_end, frames=frames).validate()
+            if not new_t_end > t_now:
+                raise CaseError(f"t_end {new_t_end:g} is not after the checkpoint time t = {t_now:.6g}")
+            tol = 1e-9 * max(1.0, abs(new_t_end))
+            new = np.linspace(0.0, new_t_end, int(frames) + 1)[1:]
+            schedule = schedule[: nxt - 1] + [float(x) for x in new if x > t_now + tol]
+            case = case.replace(t_end=new_t_end, frames=len(schedule))
+        sim = cls(case, run_dir, progress=progress, pictures=pictures, movie=movie,
+                  command=command, checkpoint_every=checkpoint_every)
+        g = case.grid
+        want = {"v": (2, g.nx, g.ny), "rho_f": (g.nx, g.ny), "xi": (sim.model.n_solids, 2, g.nx, g.ny),
+                "phi": (sim.model.n_solids, g.nx, g.ny)}
+        for name, shape in want.items():
+            if tuple(getattr(state, name).shape) != shape:
+                raise CheckpointError(
+                    f"checkpoint field {name} has shape {tuple(getattr(state, name).shape)}, the case "
+                    f"needs {shape}")
+        sim._resume_from = dict(info, state=state, frame_times=schedule)
+        return sim
+
+    @property
+    def complete(self) -> bool:
+        """True when a resumed simulation has no frame left to compute."""
+        r = self._resume_from
+        return r is not None and int(r["next_frame"]) > len(r["frame_times"])
 
     def _blow_up(self, bad, good, info, writer):
         fields = check_finite_fields(bad) or ["(time step collapsed to zero)"]
