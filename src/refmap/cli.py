@@ -1,4 +1,5 @@
-"""Command line: ``refmap list`` and ``refmap run SCENARIO``."""
+"""Command line: ``refmap list``, ``refmap run SCENARIO``, ``refmap resume DIR``,
+``refmap plot DIR``, ``refmap movie DIR`` and ``refmap info DIR``."""
 
 from __future__ import annotations
 
@@ -65,6 +66,96 @@ def run_cmd(
         f"done: {sim.total_steps} steps in {sim.wall_time:.1f} s "
         f"({sim.total_steps / max(sim.wall_time, 1e-9):.0f} steps/s); output in {out_dir}"
     )
+
+
+# ---------------------------------------------------------------------- restart and post-processing
+def _fail(msg: str, code: int = 2):
+    typer.secho(f"error: {msg}", fg="red", err=True)
+    raise typer.Exit(code)
+
+
+@app.command("resume")
+def resume_cmd(
+    run_dir: Path = typer.Argument(..., help="run folder holding checkpoint.h5"),
+    t_end: float = typer.Option(None, "--t-end", help="extend the run to this end time"),
+    frames: int = typer.Option(None, "--frames", help="with --t-end: frame intervals from 0 to t_end"),
+    checkpoint_every: int = typer.Option(1, "--checkpoint-every", help="frames between checkpoints"),
+    movie: bool = typer.Option(False, "--movie/--no-movie", help="also write an MP4 of the picture field"),
+    pictures: bool = typer.Option(True, "--pictures/--no-pictures", help="write PNG snapshots"),
+    progress: bool = typer.Option(True, "--progress/--no-progress"),
+):
+    """Continue a run from its checkpoint (after Ctrl-C, a crash, or to extend it)."""
+    from refmap.case import CaseError
+    from refmap.checkpoint import CheckpointError
+    from refmap.simulation import Simulation, SimulationBlowUp
+
+    if not run_dir.is_dir():
+        _fail(f"no run folder '{run_dir}'")
+    try:
+        sim = Simulation.resume(run_dir, t_end=t_end, frames=frames, progress=progress,
+                                pictures=pictures, movie=movie, checkpoint_every=checkpoint_every,
+                                command=" ".join(["refmap"] + sys.argv[1:]))
+    except (CheckpointError, CaseError, ValueError, FileNotFoundError) as e:
+        _fail(str(e))
+    r = sim._resume_from
+    if sim.complete:
+        typer.echo(f"run in {run_dir} is already complete at t = {float(r['t']):g}; "
+                   "pass --t-end to extend it")
+        return
+    typer.echo(f"resuming {sim.case.name} from frame {r['frame_index']} (t = {float(r['t']):g}) "
+               f"to t = {sim.case.t_end:g}")
+    try:
+        sim.run()
+    except SimulationBlowUp as e:
+        _fail(str(e), 3)
+    typer.echo(f"done: {sim.total_steps} steps in {sim.wall_time:.1f} s in all; output in {run_dir}")
+
+
+@app.command("plot")
+def plot_cmd(
+    run_dir: Path = typer.Argument(..., help="run folder"),
+    field: str = typer.Option(..., "--field", help="stored field or vorticity, speed, pressure, von_mises"),
+    time: float = typer.Option(..., "--time", help="simulated time (the nearest frame is drawn)"),
+    out: Path = typer.Option(None, "--out", help="PNG file (default RUN/plots/FIELD_tTIME.png)"),
+    solid: int = typer.Option(None, "--solid", help="which solid, for a per-solid field (J, phi, ...)"),
+):
+    """PNG of one field at one time, with the interfaces drawn."""
+    from refmap.postprocess import PostprocessError, plot_frame
+
+    try:
+        path = plot_frame(run_dir, field, time, out=out, solid=solid)
+    except PostprocessError as e:
+        _fail(str(e))
+    typer.echo(f"wrote {path}")
+
+
+@app.command("movie")
+def movie_cmd(
+    run_dir: Path = typer.Argument(..., help="run folder"),
+    field: str = typer.Option("pressure", "--field", help="stored field or vorticity, speed, pressure, von_mises"),
+    out: Path = typer.Option(None, "--out", help="MP4 file (default RUN/FIELD.mp4)"),
+    fps: int = typer.Option(15, "--fps", help="frames per second"),
+    solid: int = typer.Option(None, "--solid", help="which solid, for a per-solid field"),
+):
+    """MP4 of one field over the whole run (colour range fixed over time, interfaces drawn)."""
+    from refmap.postprocess import PostprocessError, make_run_movie
+
+    try:
+        path = make_run_movie(run_dir, field, out=out, fps=fps, solid=solid)
+    except PostprocessError as e:
+        _fail(str(e))
+    typer.echo(f"wrote {path}")
+
+
+@app.command("info")
+def info_cmd(run_dir: Path = typer.Argument(..., help="run folder")):
+    """Summary of a run: case, versions, frames and steps, wall time, dt, conservation."""
+    from refmap.postprocess import PostprocessError, format_info, run_info
+
+    try:
+        typer.echo(format_info(run_info(run_dir)))
+    except PostprocessError as e:
+        _fail(str(e))
 
 
 def main():  # pragma: no cover

@@ -94,7 +94,7 @@ def two_balls(n: int = 128) -> Case:
         name="anchored ball",
     )
     mobile = Solid(shape=Disc(center=(-0.75, 0.0), radius=0.5), law=_law(), name="mobile ball")
-    flow = Segment("velocity", velocity=(0.5, 0.0), ramp=1.0)
+    flow = Segment("velocity", velocity=(0.3, 0.0), ramp=1.0)
     return ContactCase(
         name="two_balls",
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
@@ -119,7 +119,7 @@ def ball_stick(n: int = 128) -> Case:
         anchor=RegionAnchor(Disc(center=(0.6, -1.55), radius=0.22)),
         name="stick",
     )
-    ball = Solid(shape=Disc(center=(-0.55, 0.5), radius=0.4), law=_law(), velocity=(1.5, 0.0), name="ball")
+    ball = Solid(shape=Disc(center=(-0.35, 0.55), radius=0.4), law=_law(), velocity=(2.0, 0.0), name="ball")
     return ContactCase(
         name="ball_stick",
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),

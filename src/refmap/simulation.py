@@ -244,7 +244,10 @@ class Simulation:
         if self.out_dir is None or self._done is None:
             raise RuntimeError("nothing to checkpoint (no run folder, or no frame completed yet)")
         if getattr(self, "_versions", None) is None:
+            from refmap.checkpoint import case_toml
+
             self._versions = versions()
+            self._case_toml = case_toml(self.case)
         d = dict(self._done)
         state = d.pop("state")
         d.update(
@@ -253,6 +256,7 @@ class Simulation:
             frames=int(self.case.frames),
             checkpoint_every=self.checkpoint_every,
             case=self.case.to_dict(),
+            case_toml=self._case_toml,
             scenario={"name": self.case.name, "n": int(self.case.grid.nx)},
             versions=self._versions,
             command=self.command,
@@ -322,6 +326,19 @@ class Simulation:
                 raise CheckpointError(
                     f"checkpoint field {name} has shape {tuple(getattr(state, name).shape)}, the case "
                     f"needs {shape}")
+        now = versions()
+        changed = [f"{k} {info['versions'].get(k)} -> {now.get(k)}" for k in ("refmap", "git", "jax", "jaxlib")
+                   if (info.get("versions") or {}).get(k) != now.get(k)]
+        if changed:
+            import warnings
+
+            warnings.warn(f"resuming {run_dir} with other versions than it was checkpointed with "
+                          f"({'; '.join(changed)}): the continuation may differ from an uninterrupted run",
+                          UserWarning, stacklevel=2)
+        sim._versions, sim._case_toml = now, None
+        from refmap.checkpoint import case_toml
+
+        sim._case_toml = case_toml(case)
         sim._resume_from = dict(info, state=state, frame_times=schedule)
         return sim
 
