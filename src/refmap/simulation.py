@@ -326,19 +326,18 @@ class Simulation:
                 raise CheckpointError(
                     f"checkpoint field {name} has shape {tuple(getattr(state, name).shape)}, the case "
                     f"needs {shape}")
-        now = versions()
-        changed = [f"{k} {info['versions'].get(k)} -> {now.get(k)}" for k in ("refmap", "git", "jax", "jaxlib")
-                   if (info.get("versions") or {}).get(k) != now.get(k)]
+        from refmap.checkpoint import case_toml
+
+        now, then = versions(), info.get("versions") or {}
+        changed = [f"{k} {then.get(k)} -> {now.get(k)}" for k in ("refmap", "git", "jax", "jaxlib")
+                   if then.get(k) != now.get(k)]
         if changed:
             import warnings
 
             warnings.warn(f"resuming {run_dir} with other versions than it was checkpointed with "
                           f"({'; '.join(changed)}): the continuation may differ from an uninterrupted run",
                           UserWarning, stacklevel=2)
-        sim._versions, sim._case_toml = now, None
-        from refmap.checkpoint import case_toml
-
-        sim._case_toml = case_toml(case)
+        sim._versions, sim._case_toml = now, case_toml(case)
         sim._resume_from = dict(info, state=state, frame_times=schedule)
         return sim
 
