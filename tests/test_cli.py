@@ -49,3 +49,20 @@ def test_bad_input_exits_with_a_named_error(tmp_path):
     assert r.exit_code == 2 and "cfl" in r.output
     # nothing was written for rejected input
     assert not (tmp_path / "a").exists() and not (tmp_path / "c").exists()
+
+
+def test_show_and_run_a_case_file(tmp_path):
+    r = runner.invoke(app, ["show", "circle", "--n", "32"])
+    assert r.exit_code == 0 and "[grid]" in r.output
+    path = tmp_path / "circle.toml"
+    path.write_text(r.output)
+    out = tmp_path / "run"
+    r = runner.invoke(app, ["run", str(path), "--t-end", "0.05", "--frames", "1", "--out", str(out),
+                            "--no-progress", "--no-pictures"])
+    assert r.exit_code == 0, r.output
+    ds = refmap.open_run(out)
+    assert ds.sizes["time"] == 2
+    bad = tmp_path / "bad.toml"
+    bad.write_text(path.read_text().replace("G = 10.0", "G = -3.0"))
+    r = runner.invoke(app, ["run", str(bad), "--out", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "G" in r.output and "-3" in r.output

@@ -22,36 +22,67 @@ def list_cmd():
         typer.echo(f"{name:10s} {DESCRIPTIONS[name]}  [default t_end={c.t_end:g}, frames={c.frames}]")
 
 
+@app.command("show")
+def show_cmd(
+    scenario: str = typer.Argument(..., help="built-in scenario to print as a case file"),
+    n: int = typer.Option(None, "--n", help="grid cells per side"),
+    out: Path = typer.Option(None, "--out", help="write here instead of printing"),
+):
+    """Print a built-in scenario as a TOML case file (`refmap show rotor > rotor.toml`)."""
+    from refmap.case import CaseError
+    from refmap.casefile import show_scenario
+
+    try:
+        text = show_scenario(scenario, n)
+    except CaseError as e:
+        typer.secho(f"error: {e}", fg="red", err=True)
+        raise typer.Exit(2) from None
+    if out is None:
+        typer.echo(text, nl=False)
+    else:
+        out.write_text(text, encoding="utf-8")
+        typer.echo(f"wrote {out}")
+
+
 @app.command("run")
 def run_cmd(
-    scenario: str = typer.Argument(..., help="scenario name (see `refmap list`)"),
-    n: int = typer.Option(128, "--n", help="grid cells per side"),
+    scenario: str = typer.Argument(..., help="scenario name (see `refmap list`) or a case file (.toml)"),
+    n: int = typer.Option(None, "--n", help="grid cells per side (default 128, or the case file's)"),
     t_end: float = typer.Option(None, "--t-end", help="end time (default: the scenario's)"),
     frames: int = typer.Option(None, "--frames", help="number of output frames"),
     out: Path = typer.Option(None, "--out", help="run folder (default runs/SCENARIO_N)"),
     cfl: float = typer.Option(None, "--cfl", help="time-step safety factor (default: the scenario's)"),
-    movie: bool = typer.Option(False, "--movie/--no-movie", help="also write an MP4 of the picture field"),
-    pictures: bool = typer.Option(True, "--pictures/--no-pictures", help="write PNG snapshots"),
+    movie: bool = typer.Option(None, "--movie/--no-movie", help="also write an MP4 of the picture field"),
+    pictures: bool = typer.Option(None, "--pictures/--no-pictures", help="write PNG snapshots"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing run folder"),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
 ):
-    """Run a scenario, writing HDF5 frames, an XDMF index, diagnostics and pictures."""
+    """Run a scenario or a case file, writing HDF5 frames, an XDMF index, diagnostics and pictures."""
     from refmap.case import CaseError
+    from refmap.casefile import is_case_file, load_run
     from refmap.scenarios import get_case
     from refmap.simulation import Simulation, SimulationBlowUp
 
     try:
-        case = get_case(scenario, n)
-        if t_end is not None:
-            case = case.replace(t_end=t_end)
-        if frames is not None:
-            case = case.replace(frames=frames)
-        if cfl is not None:
-            from dataclasses import replace
+        if is_case_file(scenario):
+            plan = load_run(scenario, {"n": n, "t_end": t_end, "frames": frames, "cfl": cfl,
+                                       "out": out, "movie": movie, "pictures": pictures})
+            case, out_dir, movie, pictures = plan.case, plan.out_dir, plan.movie, plan.pictures
+        else:
+            n = 128 if n is None else n
+            case = get_case(scenario, n)
+            if t_end is not None:
+                case = case.replace(t_end=t_end)
+            if frames is not None:
+                case = case.replace(frames=frames)
+            if cfl is not None:
+                from dataclasses import replace
 
-            case = case.replace(numerics=replace(case.numerics, cfl=cfl))
+                case = case.replace(numerics=replace(case.numerics, cfl=cfl))
+            out_dir = out if out is not None else Path("runs") / f"{scenario}_{n}"
+            movie = bool(movie)
+            pictures = True if pictures is None else pictures
         case.validate()
-        out_dir = out if out is not None else Path("runs") / f"{scenario}_{n}"
         sim = Simulation(case, out_dir, progress=progress, pictures=pictures, movie=movie,
                          overwrite=overwrite, command=" ".join(["refmap"] + sys.argv[1:]))
     except (CaseError, ValueError, FileExistsError) as e:
