@@ -132,10 +132,12 @@ def test_fluid_sound_wave_speed():
     assert c == pytest.approx(2.0, rel=0.01)
 
 
-@pytest.mark.parametrize("name", sorted(SCENARIOS))
+@pytest.mark.parametrize("name", ["circle", "stick", "rotor"])  # the thesis's single-solid examples
 def test_scenario_short_run(name):
     """Each thesis scenario, coarse and short: finite, fluid mass conserved, area bounded,
-    no checkerboard mode in the stress."""
+    no checkerboard mode in the stress.  (The several-solid scenarios have their own in
+    tests/test_contact.py.)"""
+    assert name in SCENARIOS
     case = get_case(name, 40)
     case = case.replace(t_end=0.3, frames=1)
     model, params = case.build()
