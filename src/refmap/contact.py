@@ -1,71 +1,94 @@
-"""Solid-solid and solid-wall contact (thesis section 4.11): a repulsive body force.
+"""Solid-solid and solid-wall contact (thesis section 4.11) as a body force.
 
-Several solids share one velocity field.  Nothing in the single-velocity formulation lets
-two bodies pass through each other, yet bodies pressed together do interpenetrate through
-their *extrapolated* reference maps (thesis Fig. 4-29), and once they overlap no velocity
-field can separate them again.  :class:`Contact` prevents the overlap with a narrow
-repulsive body force centred on the mid-surface between two solids, usable as a
-:class:`refmap.model.Model` body force::
+Several solids share one velocity field.  Nothing in a single-velocity formulation should
+let two bodies pass through each other, yet bodies pressed together do interpenetrate
+through their *extrapolated* reference maps (thesis Fig. 4-29), and once they overlap no
+velocity field separates them again.  :class:`Contact` prevents the overlap with a
+repulsive force localised on the mid-surface between two solids; it is a body-force term
+of :class:`refmap.model.Model`::
 
     model = Model(grid, solids, boundary, numerics, body_forces=(Contact(),))
 
-The force (all lengths in units of the grid spacing h)
-------------------------------------------------------
-For a pair (a, b), ``p = phi_a - phi_b`` vanishes on the mid-surface between the two
-bodies (thesis eq. 4.32) and ``n = grad(p) / |grad(p)|`` is the unit normal of that
-surface pointing from a towards b.  At a node on a's side (p < 0)
+The force
+---------
+All lengths are in units of the grid spacing h.  For a pair (a, b) the difference
+``phi_ab = phi_a - phi_b`` vanishes on the mid-surface between the two bodies (thesis
+eq. 4.32) and ``n = grad(phi_ab) / |grad(phi_ab)|`` is its unit normal, pointing from a to
+b.  At every grid corner, with a and b the nearest and second-nearest solid there,
 
-    f = -K G(p) [w_a - w_b] n,
+    Pi      = K  G(phi_ab)  chi(phi_a)  chi(phi_b),        K = strength * M_max,
+    sigma_c = -Pi n (x) n,
+    f       = div(sigma_c)    (the model's own top-right-triangle divergence at the nodes)
 
-* ``G(p) = max(exp(-(p / (width h))^2) - cutoff, 0) / (1 - cutoff)``: the truncated
-  Gaussian of the thesis (eq. 4.33), 1 on the mid-surface, exactly 0 farther than
-  ``width h sqrt(ln(1 / cutoff)) / 2`` from it (p is twice the distance to the mid-surface);
-* ``w_k = max(ws_k - cutoff, 0)``: the solid fraction of body k at the node (the
-  renormalised ``ws_n`` of :func:`refmap.model.solid_fractions`) less the cutoff, so that
-  the force is exactly zero unless the mid-surface lies inside *both* bodies' blur zones
-  (the thesis's "only acting where it overlaps the solids' blur zones");
-* ``[w_a - w_b]``: the force is the push on each body's own material, ``-K G w_a n`` on
-  a's fraction and ``+K G w_b n`` on b's, summed at the node.  On a's side w_a > w_b, so the
-  net force points back into a; on the mid-surface the two materials are present in equal
-  amounts and the net force is zero, so f is continuous and odd about the mid-surface
-  (a localised contact pressure pushing the two bodies apart).  Its size grows as the gap
-  closes: with half-gap s and distance y from the mid-surface,
-  ``w_a - w_b ~ erf-difference ~ (2 y / (sqrt(pi) w_blur)) exp(-s^2 / w_blur^2)``.
-* ``K = strength * M_max / h`` with ``M_max`` the largest small-strain longitudinal modulus
-  of the solids (``law.moduli()``): a force density of M/h acting over a layer of about
-  one cell gives a contact traction of order ``strength * M``, the stress at which the
-  solid itself deforms by O(1); the same case therefore behaves the same at every
-  resolution, and the added stiffness stays below the grid-scale elastic stiffness M/h^2
-  that the time step already resolves (see ``docs/fssi.md``).
+* ``G(p) = max(exp(-(p / (width h))^2) - cutoff, 0) / (1 - cutoff)`` is the thesis's
+  truncated Gaussian of phi_ab (eq. 4.33): 1 on the mid-surface, exactly 0 farther than
+  ``width sqrt(ln(1 / cutoff)) / 2 = 3.2`` cells from it (phi_ab is twice the distance to
+  the mid-surface);
+* ``chi(phi) = max(erfc(phi / (reach h)) / 2 - cutoff, 0) / (1 - cutoff)`` is the presence
+  of a body: 1 inside, 1/2 on its surface, exactly 0 more than 1.65 reach cells outside.
+  The product ``chi_a chi_b`` is nonzero only where the two bodies' surroundings overlap,
+  so the force acts only when the mid-surface lies inside both bodies' reach, i.e. for a
+  gap below 3.3 reach cells, and grows monotonically as the gap closes (0.25 K at contact,
+  K for overlapping bodies): there is no barrier to push through;
+* ``sigma_c`` is a uniaxial compression along the contact normal: a contact pressure Pi
+  acting across the mid-surface and nothing along it (frictionless, non-sticking: it
+  never pulls).  Its divergence pushes the material on each side of the mid-surface back
+  into its own body, and vanishes where Pi is uniform;
+* ``K = strength * M_max``, M_max the largest small-strain longitudinal modulus of the
+  solids (``law.moduli()``).  Pi is a stress, so the force density scales as M / h and the
+  same case behaves the same at every resolution (gaps in cells, forces per area); the
+  contact is as stiff as a layer of solid about one cell thick, which the explicit step
+  already resolves.  Under a load P the pair settles where chi^2 = P / (strength M) at
+  the mid-surface: about one cell apart for P ~ M / 20, touching for P ~ M / 4.
 
-Equal and opposite.  The discrete force of a pair does not sum to zero exactly (the two
-sides of a curved contact are sampled by different nodes), so each pair's net force F is
-removed again with the weights ``W = G (w_a + w_b)``, localised at the contact:
-``f <- f - W F / sum(W)``.  Every pair then exchanges momentum only with itself, to
-round-off.
+Why a stress and not a point-wise body force (the thesis's literal form).  We first used
+``f = -K G(phi_ab) (chi_a - chi_b) n`` at the nodes, a narrow Gaussian of width 1.5 h.
+It acts on the one or two node layers at the mid-surface, accelerates them relative to the
+body behind them and creates grid-scale velocity jumps; the centred divergence of the fluid
+density update then grows an odd-even mode (rho_f between -1 and 265 in a head-on test at
+48^2).  As the divergence of a stress, the force
 
-Many solids.  At each node only the nearest and the second-nearest solid (the two smallest
-phi_k, by ``lax.top_k`` over the solid axis) form the pair: O(N) work per node, not
-O(N^2).  A node where three bodies meet sees only its two nearest; the pair sums are
-segment sums keyed by the pair index ``min(a, b) N + max(a, b)``.
+* conserves momentum exactly, pair by pair: every interior corner pushes the two nodes on
+  either side of it equally and oppositely, so no correction is needed (the pair pressure
+  is set to zero on corners of non-periodic domain edges);
+* does work ``sum f.v = -sum sigma_c : grad_h v`` through the same adjoint stencil pair as
+  the elastic stress, so it behaves like additional elastic stiffness under the explicit
+  step; measured: no odd-even mode and a fluid density within the range of the same run
+  without contact;
+* varies smoothly over a few cells (widths 3 h and 1 h below).
 
-Walls.  Each non-periodic domain edge is an obstacle whose distance ``phi_w`` is known
-exactly.  A solid near it is treated as a pair with its own mirror image across the wall:
-then ``p = -2 phi_w`` (the mid-surface is the wall) and the image's fraction is
-``ws(phi_k + 2 phi_w)``.  The force acts on the solid only (the wall takes the reaction, so
-momentum is not conserved there, as for any wall).  It is summed over all solids (O(N) per
-node) and, by the cutoff, is exactly zero for a solid more than about four cells from
-every wall.
+Many solids.  At each corner only the nearest and the second-nearest solid (the two
+smallest phi_k, ``lax.top_k`` over the solid axis) form the pair: O(N) work per corner, not
+O(N^2).  A corner where three bodies meet sees its two nearest only.
 
-Diagnostics.  :func:`contact_diagnostics` gives, per solid, the integrated contact force on
-its side of each pair and the wall force; per pair (i < j) the minimum gap
-``min(phi_i + phi_j)`` (for signed distances this is exactly the distance between the two
-surfaces, and minus the overlap depth when they overlap) and the overlap area (nodes where
-both phi_i and phi_j are negative, times the cell area).
+Walls.  Each non-periodic domain edge is an obstacle whose distance phi_w is exact.  A
+solid near it is treated as a pair with its own mirror image across the wall: then
+``phi_ab = -2 phi_w`` (the mid-surface is the wall), the image's level set is
+``phi_k + 2 phi_w`` and n is the wall normal.  Summed over all solids (O(N) per corner).
+The wall corners carry this pressure, so the wall takes the reaction: the force acts on the
+solid only and momentum is not conserved there, as for any wall.  Without it a heavy ball
+resting on a no-slip floor sinks through it (its map leaks through the linearly
+extrapolated ghost values); with it the ball stays above the floor.
+
+Defaults and their reasons: ``width = 3`` (narrower kernels act on single node layers, see
+above; 3 h keeps the pressure within 3 cells of the mid-surface), ``reach = 1`` (with the
+blur width 2 the pair stopped 6 cells apart, with 1 it engages at 3 cells and rests about
+one apart), ``cutoff = 0.01`` (the thesis's truncation; it makes the force exactly zero
+for bodies far apart, so one solid away from the walls runs bit-for-bit as without
+contact), ``strength = 1`` (0.3 lets a pair pushed by a body force of 2 per unit volume
+close to 0.4 h; 1 keeps it at 1 h and a push of 6 above 0.1 h).
+
+Diagnostics.  :func:`contact_diagnostics` gives, per solid, the contact force integrated
+over the nodes, shared among the solids present in proportion to their fractions (pair and
+wall parts); per pair the minimum
+gap ``min(phi_i + phi_j)`` (for signed distances exactly the distance between the
+surfaces, minus the overlap depth if negative) and the overlap area; per solid the gap to
+the walls.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -76,71 +99,125 @@ from jax.scipy.special import erfc
 
 from refmap.operators import div_node
 
-__all__ = ["Contact", "contact_force", "contact_diagnostics", "benchmark"]
+__all__ = [
+    "Contact",
+    "contact_stress",
+    "contact_force",
+    "contact_diagnostics",
+    "wall_distances",
+    "benchmark",
+]
 
 
 @dataclass(frozen=True)
 class Contact:
-    """Repulsive contact body force between solids and against domain walls.
+    """Repulsive contact between solids and against the non-periodic domain edges.
 
-    Parameters
+    Parameters (lengths in grid cells h)
     ----------
     width:
-        Width of the Gaussian of ``phi_ij = phi_i - phi_j`` in units of h (default 1.5, the
-        thesis's ``sqrt(dx / 16)`` at 128^2 is 1.41 h).  With the 0.01 cutoff the force acts
-        within ``1.07 * width`` h of the mid-surface: about three node layers, enough that
-        the force summed across the contact varies by < 1 % as the mid-surface moves
-        through the grid, narrow enough to stay inside the blur zones.
+        Width of the Gaussian of ``phi_a - phi_b`` (default 3): the pressure acts within
+        ``1.07 width`` cells of the mid-surface.
+    reach:
+        Width of a body's presence ``erfc(phi / (reach h)) / 2`` (default 1): contact engages
+        at a gap of ``3.3 reach`` cells.
     cutoff:
-        Truncation level of the Gaussian and of the solid fractions (thesis: 0.01).
+        Truncation level of the Gaussian and of the presences (thesis: 0.01).
     strength:
-        ``K = strength * M_max / h``; default 2.  Larger is stiffer (smaller equilibrium gap)
-        but above about 8 the contact stiffness exceeds what the explicit step resolves.
+        Contact stiffness in units of the largest longitudinal modulus of the solids
+        (default 1): the contact pressure is 0.25 strength M at touching.
     walls:
-        Also push solids away from the non-periodic domain edges.
+        Also keep solids off the non-periodic domain edges (default True).
     """
 
     width: float = 3.0
+    reach: float = 1.0
     cutoff: float = 0.01
     strength: float = 1.0
-    reach: float = 1.0
     walls: bool = True
 
     def __post_init__(self):
-        for name in ("width", "strength"):
+        for name in ("width", "reach", "strength"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"Contact {name} must be a finite number > 0, got {v!r}")
+            object.__setattr__(self, name, float(v))
         if not (isinstance(self.cutoff, (int, float)) and 0.0 <= self.cutoff < 1.0):
             raise ValueError(f"Contact cutoff must be in [0, 1), got {self.cutoff!r}")
+        object.__setattr__(self, "cutoff", float(self.cutoff))
+        object.__setattr__(self, "walls", bool(self.walls))
 
     def __call__(self, ctx):
-        return contact_force(self, ctx["model"], ctx["state"], ctx["params"], ctx["derived"])["force"]
+        """Body-force term of :class:`refmap.model.Model`: force density (2, nx, ny)."""
+        return contact_force(self, ctx["model"], ctx["state"], ctx["params"], ctx["derived"])[
+            "force"
+        ]
+
+    def diagnostics(self, model, state, params, derived=None):
+        """Flat scalar contact diagnostics and per-solid numbers, shaped like
+        ``Model.diagnostics`` (``solids`` is a list of per-solid dicts)."""
+        d = contact_diagnostics(model, state, params, self, derived=derived)
+        N = model.n_solids
+        out = dict(
+            contact_max_pressure=d["max_contact_pressure"],
+            contact_max_wall_pressure=d["max_wall_pressure"],
+        )
+        if N >= 2:
+            iu = np.triu_indices(N, 1)
+            out["contact_min_gap"] = jnp.min(d["min_gap"][iu])
+            out["contact_overlap_area"] = jnp.sum(d["overlap_area"][iu])
+        if N >= 1:
+            out["contact_min_wall_gap"] = jnp.min(d["wall_gap"])
+            out["solids"] = [
+                dict(
+                    contact_fx=d["force"][k, 0],
+                    contact_fy=d["force"][k, 1],
+                    wall_gap=d["wall_gap"][k],
+                )
+                for k in range(N)
+            ]
+        return out
 
     def to_dict(self):
-        return {"width": self.width, "cutoff": self.cutoff, "strength": self.strength, "walls": self.walls}
+        return {
+            "width": self.width,
+            "reach": self.reach,
+            "cutoff": self.cutoff,
+            "strength": self.strength,
+            "walls": self.walls,
+        }
 
 
 # ----------------------------------------------------------------------------- pieces
 def _stiffness(contact: Contact, params):
+    """K = strength * (largest small-strain longitudinal modulus of the solids)."""
     M_max = jnp.asarray(1e-30)
     for law in params.laws:
         M_max = jnp.maximum(M_max, law.moduli()[1])
     return contact.strength * M_max
 
 
-def _kernel(p, width_h, cutoff):
-    g = jnp.exp(-((p / width_h) ** 2))
+def _truncated(g, cutoff):
     return jnp.maximum(g - cutoff, 0.0) / (1.0 - cutoff)
 
 
+def _kernel(p, contact: Contact, h):
+    """Truncated Gaussian of phi_ab (thesis eq. 4.33)."""
+    return _truncated(jnp.exp(-((p / (contact.width * h)) ** 2)), contact.cutoff)
+
+
+def _presence(phi, contact: Contact, h):
+    """Truncated smoothed indicator of a body: 1 inside, 1/2 on its surface, 0 far out."""
+    return _truncated(0.5 * erfc(phi / (contact.reach * h)), contact.cutoff)
+
+
 def _take(field, idx):
-    """field (N, nx, ny), idx (nx, ny) -> field[idx[i, j], i, j]."""
+    """field (N, ...), idx (...) -> field[idx[...], ...]."""
     return jnp.take_along_axis(field, idx[None], axis=0)[0]
 
 
 def _top2(phi):
-    """Indices of the nearest (a) and second-nearest (b) solid at every node."""
+    """Indices of the nearest (a) and second-nearest (b) solid at every point: O(N) each."""
     _, idx = jax.lax.top_k(-jnp.moveaxis(phi, 0, -1), 2)
     return idx[..., 0], idx[..., 1]
 
@@ -152,14 +229,9 @@ def _corner_gradient(fp, dx, dy):
     return gx, gy
 
 
-def _presence(phi, contact, h):
-    chi = 0.5 * erfc(phi / (contact.reach * h))
-    c = contact.cutoff
-    return jnp.maximum(chi - c, 0.0) / (1.0 - c)
-
-
 def wall_distances(model, loc="corner"):
-    """[(phi_w, inward normal (2,))] for every non-periodic domain edge, at ``loc`` points."""
+    """``[(phi_w, inward normal)]`` for every non-periodic domain edge, at ``loc`` points
+    (numpy arrays of the grid's ``loc`` shape)."""
     g = model.grid
     X, Y = g.mesh(loc)
     px, py = model.bc.periodic
@@ -171,12 +243,13 @@ def wall_distances(model, loc="corner"):
     return out
 
 
+# ----------------------------------------------------------------------------- the force
 def contact_stress(contact: Contact, model, state, params, derived=None):
-    """Contact stress at the corners and its parts.
+    """Contact stress at the corners.
 
-    Returns a dict with the pair pressure ``Pi`` and wall pressure ``Pi_wall`` (nx+1, ny+1),
-    the corner stress components ``sxx, sxy, syy``, and ``a``, ``b`` (nearest and second-
-    nearest solid at each corner; None for fewer than two solids).
+    Returns a dict: ``Pi`` and ``Pi_wall`` (pair and wall contact pressures, corner
+    arrays), ``pair`` and ``wall`` (their stresses as ``(sxx, sxy, syy)`` corner arrays),
+    ``a`` and ``b`` (nearest and second-nearest solid at each corner; None for N < 2).
     """
     d = derived if derived is not None else model.derived(state, params)
     g = model.grid
@@ -187,7 +260,7 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     out = dict(Pi=z, Pi_wall=z, pair=(z, z, z), wall=(z, z, z), a=None, b=None)
     if N == 0:
         return out
-    Ks = _stiffness(contact, params)
+    K = _stiffness(contact, params)
     phic = d["phic"]
     if N >= 2:
         a, b = _top2(phic)
@@ -198,28 +271,38 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
         ny_ = _take(gy, a) - _take(gy, b)
         nn = nx_ * nx_ + ny_ * ny_
         inv = jnp.where(nn > 1e-12, 1.0 / jnp.where(nn > 1e-12, nn, 1.0), 0.0)
-        Pi = Ks * _kernel(pa - pb, contact.width * h, contact.cutoff) * _presence(pa, contact, h) * _presence(pb, contact, h)
-        # no pair pressure on the domain edge: every interior corner pushes its two
-        # neighbouring nodes equally and oppositely, so each pair conserves momentum exactly
+        Pi = (
+            K * _kernel(pa - pb, contact, h) * _presence(pa, contact, h) * _presence(pb, contact, h)
+        )
+        # no pair pressure on the corners of non-periodic edges: their push on the node
+        # outside the domain would be lost, and with it the pair's momentum balance
         edge = np.zeros(cshape, dtype=bool)
-        edge[0, :] = edge[-1, :] = edge[:, 0] = edge[:, -1] = True
+        px, py = model.bc.periodic
+        if not px:
+            edge[0, :] = edge[-1, :] = True
+        if not py:
+            edge[:, 0] = edge[:, -1] = True
         Pi = jnp.where(jnp.asarray(edge), 0.0, Pi)
-        q = Pi * inv
+        q = Pi * inv  # n (x) n = grad(phi_ab) (x) grad(phi_ab) / |grad(phi_ab)|^2
         out.update(Pi=Pi, a=a, b=b, pair=(-q * nx_ * nx_, -q * nx_ * ny_, -q * ny_ * ny_))
     if contact.walls:
-        sxx = sxy = syy = Pw_total = z
-        for phi_w, (wx, wy) in wall_distances(model, "corner"):
-            phi_w = jnp.asarray(phi_w)
-            pres = _presence(phic, contact, h) * _presence(phic + 2.0 * phi_w, contact, h)
-            Pw = Ks * _kernel(-2.0 * phi_w, contact.width * h, contact.cutoff) * jnp.sum(pres, axis=0)
-            sxx, sxy, syy = sxx - Pw * wx * wx, sxy - Pw * wx * wy, syy - Pw * wy * wy
-            Pw_total = Pw_total + Pw
-        out.update(Pi_wall=Pw_total, wall=(sxx, sxy, syy))
+        walls = wall_distances(model, "corner")
+        if walls:
+            sxx = sxy = syy = Pw_total = z
+            chi = _presence(phic, contact, h)
+            for phi_w, (wx, wy) in walls:
+                phi_w = jnp.asarray(phi_w)
+                image = _presence(phic + 2.0 * phi_w, contact, h)
+                Pw = K * _kernel(-2.0 * phi_w, contact, h) * jnp.sum(chi * image, axis=0)
+                sxx, sxy, syy = sxx - Pw * wx * wx, sxy - Pw * wx * wy, syy - Pw * wy * wy
+                Pw_total = Pw_total + Pw
+            out.update(Pi_wall=Pw_total, wall=(sxx, sxy, syy))
     return out
 
 
 def contact_force(contact: Contact, model, state, params, derived=None):
-    """Contact force density (2, nx, ny) = div(contact stress), with the stress parts."""
+    """Contact force density at the nodes: dict with ``force`` (2, nx, ny), its parts
+    ``pair_force`` and ``wall_force``, and everything :func:`contact_stress` returns."""
     cs = contact_stress(contact, model, state, params, derived)
     g = model.grid
     cs["pair_force"] = div_node(*cs["pair"], g.dx, g.dy)
@@ -228,22 +311,31 @@ def contact_force(contact: Contact, model, state, params, derived=None):
     return cs
 
 
-def contact_diagnostics(model, state, params, contact: Contact | None = None, gap_band: float = 6.0):
-    """Contact numbers at one state (jit-able with ``model`` and ``contact`` static).
+# ----------------------------------------------------------------------------- diagnostics
+def contact_diagnostics(
+    model, state, params, contact: Contact | None = None, gap_band: float = 6.0, derived=None
+):
+    """Contact numbers at one state (jit-able; ``model`` and ``contact`` are static).
 
-    Returns a dict of arrays:
+    Returns a dict of arrays (N solids):
 
-    * ``force`` (N, 2): the integral of the contact force density over the nodes on each
-      solid's side of its pairs (the nodes where it is the nearest solid), plus its wall
-      force; ``pair_force`` (N, 2) and ``wall_force`` (N, 2) separately;
-    * ``pair_net`` (N, N, 2): the net force of each pair (i <= j), zero to round-off;
-    * ``min_gap`` (N, N): for i != j, ``min(phi_i + phi_j)`` over the nodes where both
-      |phi| < ``gap_band`` h (where the level sets are signed distances and not clipped):
-      the distance between the two surfaces, negative when they overlap (minus the overlap
-      depth); +inf when the two bodies are farther apart than that band can see;
-    * ``overlap_area`` (N, N): area of the nodes where phi_i < 0 and phi_j < 0;
-    * ``wall_gap`` (N,): ``min(phi_k + phi_w)`` over the nodes and non-periodic walls
-      (distance from solid k to the nearest wall, negative if it crossed it), +inf if none.
+    * ``force`` (N, 2): the contact force on each solid: the force density integrated over
+      the nodes, each node's force shared among the solids in proportion to their solid
+      fractions ``ws_n`` there; ``pair_force`` and
+      ``wall_force`` (N, 2) its two parts.  For an isolated pair the two pair forces are
+      equal and opposite to round-off;
+    * ``net_pair_force`` (2,): the sum of all pair forces (zero to round-off);
+    * ``max_contact_pressure``, ``max_wall_pressure``: the largest Pi on the corners;
+    * ``min_gap`` (N, N): ``min(phi_i + phi_j)`` over the nodes where i and j are the two
+      nearest solids and both |phi| < ``gap_band`` h (where the level sets are distances,
+      not clipped): the distance between the two surfaces, negative when they overlap
+      (minus the overlap depth); +inf when they are farther apart than that; NaN on the
+      diagonal;
+    * ``overlap_area`` (N, N): area of the nodes inside both i and j (phi_i < 0 and
+      phi_j < 0, counted where they are the two nearest solids);
+    * ``wall_gap`` (N,): ``min(phi_k + phi_w)`` over the nodes within the band and the
+      non-periodic edges: the distance from solid k to the nearest wall, negative once it
+      crossed it; +inf if none.
     """
     contact = contact if contact is not None else Contact()
     g = model.grid
@@ -251,12 +343,19 @@ def contact_diagnostics(model, state, params, contact: Contact | None = None, ga
     N = model.n_solids
     h = model.h
     phi = state.phi
-    cf = contact_force(contact, model, state, params)
+    d = derived if derived is not None else model.derived(state, params)
+    cf = contact_force(contact, model, state, params, d)
     out = {}
-    nearest = jnp.argmin(phi, axis=0).ravel()
+    if N == 0:
+        return out
+    # the force on a node is shared among the solids in proportion to their fractions
+    # there (smooth, so that it respects the symmetries of the state to round-off)
+    ws = d["ws_n"]
+    tot = jnp.sum(ws, axis=0, keepdims=True)
+    owner = jnp.where(tot > 1e-300, ws / jnp.where(tot > 1e-300, tot, 1.0), 0.0)
 
     def per_solid(f):
-        return jnp.stack([jax.ops.segment_sum(f[i].ravel(), nearest, num_segments=N) for i in range(2)], axis=-1) * dA
+        return jnp.einsum("kij,cij->kc", owner, f) * dA
 
     out["pair_force"] = per_solid(cf["pair_force"])
     out["wall_force"] = per_solid(cf["wall_force"])
@@ -274,10 +373,12 @@ def contact_diagnostics(model, state, params, contact: Contact | None = None, ga
         key = (jnp.minimum(a, b) * N + jnp.maximum(a, b)).ravel()
         ok = (jnp.abs(pa) < L) & (jnp.abs(pb) < L)
         gk = jax.ops.segment_min(jnp.where(ok, pa + pb, jnp.inf).ravel(), key, num_segments=N * N)
-        ak = jax.ops.segment_sum(((pa < 0) & (pb < 0)).astype(phi.dtype).ravel(), key, num_segments=N * N) * dA
+        ak = jax.ops.segment_sum(
+            ((pa < 0) & (pb < 0)).astype(phi.dtype).ravel(), key, num_segments=N * N
+        )
         gap = gk.reshape(N, N)
-        area = ak.reshape(N, N)
         gap = jnp.minimum(gap, gap.T)
+        area = ak.reshape(N, N) * dA
         area = area + area.T
     eye = jnp.eye(N, dtype=bool)
     out["min_gap"] = jnp.where(eye, jnp.nan, gap)
@@ -291,54 +392,97 @@ def contact_diagnostics(model, state, params, contact: Contact | None = None, ga
 
 
 # ----------------------------------------------------------------------------- benchmark
-def benchmark(counts=(1, 2, 4, 8, 32), n: int = 256, steps: int = 5, reps: int = 2, contact: Contact | None = None):
-    """Wall-clock cost per step (ms) of the full step with contact, and of the contact
-    force alone, for ``counts`` solids (small discs on a lattice) on an n x n grid.
+def _lattice_of_discs(N: int, law):
+    from refmap.geometry import Disc
+    from refmap.model import Solid
 
-    Returns a list of dicts (n_solids, step_ms, contact_ms, compile_s).
+    m = int(math.ceil(math.sqrt(N)))
+    pitch = 3.4 / m
+    r = 0.38 * pitch
+    out = []
+    for k in range(N):
+        i, j = divmod(k, m)
+        c = (-1.7 + (i + 0.5) * pitch, -1.7 + (j + 0.5) * pitch)
+        out.append(
+            Solid(
+                shape=Disc(center=c, radius=r),
+                law=law,
+                velocity=(0.1 * (-1) ** k, 0.0),
+                name=f"disc{k}",
+            )
+        )
+    return tuple(out)
+
+
+def benchmark(
+    counts=(1, 2, 4, 8, 32),
+    n: int = 256,
+    steps: int = 5,
+    reps: int = 2,
+    contact: Contact | None = None,
+    compare: bool = True,
+    verbose: bool = True,
+):
+    """Wall-clock cost per step for N discs on a lattice in a closed n x n box.
+
+    For each N in ``counts``: the whole step with contact (``step_ms``), the contact force
+    alone (``contact_ms``, from given derived fields), the compile time of the stepping
+    function and, with ``compare``, the same step without contact
+    (``step_no_contact_ms``).  Returns the rows as dicts; prints a table when ``verbose``.
     """
     from refmap.boundary import Boundary
-    from refmap.geometry import Disc
     from refmap.grid import Grid
     from refmap.materials import NeoHookean
-    from refmap.model import Model, Solid
+    from refmap.model import Model
 
     contact = contact if contact is not None else Contact()
-    rows = []
-    for N in counts:
-        m = int(np.ceil(np.sqrt(N)))
-        r = 0.35 * 3.2 / m
-        solids = []
-        for k in range(N):
-            i, j = divmod(k, m)
-            cx = -1.6 + (i + 0.5) * 3.2 / m
-            cy = -1.6 + (j + 0.5) * 3.2 / m
-            solids.append(Solid(shape=Disc(center=(cx, cy), radius=r), law=NeoHookean(G=10.0, kappa=10.0),
-                                name=f"disc{k}"))
-        model = Model(Grid(n, n), tuple(solids), Boundary(), body_forces=(contact,))
-        params = model.default_params(gravity=(0.0, -0.2))
-        state = model.initial_state(params)
-        dt = model.time_step(state, params)[0]
-        run = jax.jit(lambda s, model=model, params=params: model.run_steps(s, params, steps, dt=dt))
+    law = NeoHookean(G=10.0, kappa=10.0)
+
+    def best_of(fn, *args):
         t0 = time.perf_counter()
-        jax.block_until_ready(run(state))
-        comp = time.perf_counter() - t0
-        best = np.inf
+        jax.block_until_ready(fn(*args))
+        first = time.perf_counter() - t0
+        best = math.inf
         for _ in range(reps):
             t0 = time.perf_counter()
-            jax.block_until_ready(run(state))
+            jax.block_until_ready(fn(*args))
             best = min(best, time.perf_counter() - t0)
+        return first, best
+
+    def step_cost(solids, forces):
+        model = Model(Grid(n, n), solids, Boundary(), body_forces=forces)
+        params = model.default_params(gravity=(0.0, -0.2))
+        state = jax.jit(model.initial_state)(params)
+        dt = model.time_step(state, params)[0]
+
+        def run(s):
+            return model.run_steps(s, params, steps, dt=dt)
+
+        first, best = best_of(jax.jit(run), state)
+        return model, params, state, best / steps * 1e3, first - best
+
+    rows = []
+    if verbose:
+        print(f"backend {jax.default_backend()}, {n}x{n}, {steps} steps, best of {reps}")
+        print(
+            f"{'N':>4} {'step [ms]':>10} {'no contact':>11} {'contact [ms]':>13} {'compile [s]':>12}"
+        )
+    for N in counts:
+        solids = _lattice_of_discs(N, law)
+        model, params, state, step_ms, compile_s = step_cost(solids, (contact,))
         d = jax.jit(model.derived)(state, params)
 
-        def cfo(s, d, model=model, params=params):
+        def force(s, d, model=model, params=params):
             return contact_force(contact, model, s, params, d)["force"]
 
-        cf = jax.jit(cfo)
-        jax.block_until_ready(cf(state, d))
-        bc = np.inf
-        for _ in range(max(reps, 3)):
-            t0 = time.perf_counter()
-            jax.block_until_ready(cf(state, d))
-            bc = min(bc, time.perf_counter() - t0)
-        rows.append(dict(n_solids=N, step_ms=best / steps * 1e3, contact_ms=bc * 1e3, compile_s=comp))
+        row = dict(n_solids=N, step_ms=step_ms, compile_s=compile_s)
+        row["contact_ms"] = best_of(jax.jit(force), state, d)[1] * 1e3
+        row["step_no_contact_ms"] = step_cost(solids, ())[3] if compare else math.nan
+        rows.append(row)
+        if verbose:
+            print(
+                f"{N:>4} {row['step_ms']:>10.2f} {row['step_no_contact_ms']:>11.2f} "
+                f"{row['contact_ms']:>13.2f} {row['compile_s']:>12.1f}",
+                flush=True,
+            )
     return rows

@@ -123,3 +123,7 @@ def get_case(name: str, n: int = 128) -> Case:
     if not isinstance(n, int) or n < 16:
         raise CaseError(f"grid size n must be an integer >= 16, got {n!r}")
     return SCENARIOS[name](n)
+
+
+# the several-solid scenarios register themselves on import (kept in their own module)
+from refmap import scenarios_fssi as _scenarios_fssi  # noqa: E402,F401

@@ -5,14 +5,14 @@ Importing this module registers three scenarios with :func:`refmap.scenarios.sce
 
 * ``two_balls`` -- an anchored ball and a mobile ball pressed together by a flow entering
   from the left (thesis Fig. 4-32);
-* ``ball_stick`` -- a ball thrown at a stick anchored at its foot; it bends the stick,
-  bounces off and falls back under weak gravity (thesis Figs. 4-33 to 4-35);
+* ``ball_stick`` -- a ball (density 2) thrown at a stick anchored at its foot; it bends
+  the stick, bounces off and falls back under weak gravity (thesis Figs. 4-33 to 4-35);
 * ``settle`` -- five soft balls of different sizes and densities 1.5-2 settling under
   gravity onto the floor of a closed box and piling up.
 
 Common parameters are the thesis's: domain [-2, 2]^2, compressible neo-Hookean solids with
 G = kappa = 10 (density 1 unless stated), fluid rho_f0 = 1, lambda_f = 1, eta = 0.12, extra
-viscosity 0.02.
+viscosity 0.02; every scenario uses the default :class:`Contact` (walls included).
 
 A :class:`refmap.case.Case` has no field for body forces yet, so the scenarios return a
 :class:`ContactCase`: a Case with one more field, ``contact``, whose ``build()`` passes it
@@ -73,8 +73,11 @@ def build(case: Case, contact: Contact | None = None):
         contact = getattr(case, "contact", None)
     forces = (contact,) if contact is not None else ()
     model = Model(case.grid, case.solids, case.boundary, case.numerics, body_forces=forces)
-    params = Params(fluid=case.fluid, laws=tuple(s.law for s in case.solids),
-                    gravity=tuple(float(x) for x in case.gravity))
+    params = Params(
+        fluid=case.fluid,
+        laws=tuple(s.law for s in case.solids),
+        gravity=tuple(float(x) for x in case.gravity),
+    )
     return model, params
 
 
@@ -82,11 +85,19 @@ def _law(rho0: float = 1.0):
     return NeoHookean(G=10.0, kappa=10.0, rho0=rho0)
 
 
-@scenario("two_balls", "an anchored and a mobile soft ball pressed together by a flow entering from the left")
+@scenario(
+    "two_balls",
+    "an anchored and a mobile soft ball pressed together by a flow entering from the left",
+)
 def two_balls(n: int = 128) -> Case:
     # The anchored ball is held by its centre (radius 0.2 of 0.5), so its rim deforms freely.
     # The flow (u = 0.3, ramped up over t = 1, prescribed on the left and right edges as in
-    # the thesis's stick case, free slip top and bottom) carries the mobile ball onto it.
+    # the thesis's stick case, free slip top and bottom) carries the mobile ball, 0.3 away,
+    # onto it head-on.  Measured at 64^2: contact from t ~ 2.5, then the pair rests about 1.5
+    # cells apart under a contact pressure of ~0.3 (J in [0.93, 1.10]) with no overlap up to
+    # t = 12; the mobile ball starts to slide off sideways (frictionless contact) at t ~ 10.
+    # The deformation stays moderate: the flow's stresses (~ rho U^2, eta U / R) are small
+    # next to G = 10, and a much faster flow is transonic in this fluid (sound speed 1).
     fixed = Solid(
         shape=Disc(center=(0.55, 0.0), radius=0.5),
         law=_law(),
@@ -108,18 +119,29 @@ def two_balls(n: int = 128) -> Case:
     )
 
 
-@scenario("ball_stick", "a soft ball thrown at a stick anchored at its foot; bends it, bounces off, falls back")
+@scenario(
+    "ball_stick",
+    "a soft ball thrown at a stick anchored at its foot; bends it, bounces off, falls back",
+)
 def ball_stick(n: int = 128) -> Case:
-    # A stick (capsule, half-length 1.0, radius 0.25) anchored at its foot near the floor of a
-    # closed box; a ball of radius 0.4 thrown at its upper half at speed 1.2 (it loses about
-    # half of it to the fluid it sets moving); weak gravity g = 0.2 brings it back down.
+    # A stick (capsule, half-length 0.95, radius 0.25, the thesis's G = kappa = 10) anchored
+    # at its foot near the floor of a closed box; a ball of radius 0.4 thrown at its upper
+    # half at speed 1.2 from 0.25 away; weak gravity g = 0.2 brings it back down.  The ball
+    # is twice as dense as the fluid: a ball of density 1 shares half its momentum with the
+    # fluid it sets moving at once (added mass) and the viscous fluid (eta = 0.12) stops it
+    # about two cells short of the stick at 64^2, so it pushes the stick only through the
+    # fluid film; with density 2 it reaches it, the contact pressure acts (gap ~1.7 cells),
+    # the stick bends by ~0.15 at its tip, springs back and throws the ball off (measured
+    # at 64^2: ball centre x -0.3 -> 0.17 at t = 2 -> -0.14 at t = 6, y 0.5 -> -0.17).
     stick = Solid(
-        shape=Capsule(center=(0.6, -0.6), half_length=1.0, radius=0.25, angle=math.pi / 2),
+        shape=Capsule(center=(0.6, -0.5), half_length=0.95, radius=0.25, angle=math.pi / 2),
         law=_law(),
-        anchor=RegionAnchor(Disc(center=(0.6, -1.55), radius=0.22)),
+        anchor=RegionAnchor(Disc(center=(0.6, -1.45), radius=0.22)),
         name="stick",
     )
-    ball = Solid(shape=Disc(center=(-0.35, 0.55), radius=0.4), law=_law(), velocity=(2.0, 0.0), name="ball")
+    ball = Solid(
+        shape=Disc(center=(-0.3, 0.5), radius=0.4), law=_law(2.0), velocity=(1.2, 0.0), name="ball"
+    )
     return ContactCase(
         name="ball_stick",
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
@@ -144,7 +166,10 @@ SETTLE_BALLS = (
 )
 
 
-@scenario("settle", "five soft balls of different sizes and densities settling under gravity and piling up")
+@scenario(
+    "settle",
+    "five soft balls of different sizes and densities settling under gravity and piling up",
+)
 def settle(n: int = 128) -> Case:
     solids = tuple(
         Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"ball{k} (r={r:g}, rho={rho:g})")
@@ -157,8 +182,8 @@ def settle(n: int = 128) -> Case:
         boundary=Boundary(),
         fluid=FluidParams(),
         numerics=Numerics(),
-        gravity=(0.0, -1.0),
-        t_end=15.0,
+        gravity=(0.0, -0.2),
+        t_end=30.0,
         frames=60,
         description=DESCRIPTIONS["settle"],
         contact=Contact(),

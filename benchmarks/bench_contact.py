@@ -1,0 +1,41 @@
+"""Benchmark contact (refmap.contact) against the number of solids.
+
+For N discs on a lattice in a closed box, prints the cost per step of the whole step with
+contact, of the same step without contact, and of the contact force alone, plus the
+compile time.  The contact force does O(N) work per grid corner (the two nearest solids by
+``lax.top_k``), so its cost should grow linearly in N; the whole step is O(N) too (every
+solid has its own reference map, level set and extrapolation band).
+
+Usage: python benchmarks/bench_contact.py [--n 256] [--counts 1,2,4,8,32] [--steps 5]
+       [--reps 2] [--no-compare]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import refmap  # noqa: F401
+from refmap.contact import benchmark
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n", type=int, default=256)
+    ap.add_argument("--counts", default="1,2,4,8,32")
+    ap.add_argument("--steps", type=int, default=5)
+    ap.add_argument("--reps", type=int, default=2)
+    ap.add_argument("--no-compare", action="store_true", help="skip the step without contact")
+    a = ap.parse_args()
+    counts = tuple(int(c) for c in a.counts.split(","))
+    rows = benchmark(counts, n=a.n, steps=a.steps, reps=a.reps, compare=not a.no_compare)
+    base = rows[0]
+    print("\nratio to N = 1 (linear growth means ratio ~ N):")
+    for r in rows:
+        print(
+            f"N = {r['n_solids']:>3}: step x{r['step_ms'] / base['step_ms']:.2f}, "
+            f"contact force x{r['contact_ms'] / base['contact_ms']:.2f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
