@@ -16,7 +16,7 @@ from refmap.case import Case, CaseError
 from refmap.geometry import Disc, Rectangle
 from refmap.grid import Grid
 from refmap.materials import LogNeoHookean, NeoHookean
-from refmap.model import Model, Solid, solid_fractions
+from refmap.model import Solid, solid_fractions
 from refmap.scenarios import SCENARIOS, get_case
 from refmap.state import FluidParams, Numerics
 

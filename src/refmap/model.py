@@ -21,7 +21,7 @@ edge conditions, numerics); :meth:`Model.step` is a pure function
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax
@@ -163,9 +163,6 @@ class Model:
         for sy in ((-1, 1) if py else ()):
             out = jnp.minimum(out, shape(X, Y + sy * Ly))
         return out
-
-    def _band_tools(self, phi):
-        return dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
 
     def extrapolate(self, xi, phi):
         """Extrapolate each solid's map into its band and smooth the extrapolated values."""
@@ -549,4 +546,4 @@ def check_finite_fields(state: State) -> list[str]:
     return bad
 
 
-__all__ = ["Model", "Solid", "StepInfo", "LIMIT_NAMES", "solid_fractions", "check_finite_fields", "field"]
+__all__ = ["Model", "Solid", "StepInfo", "LIMIT_NAMES", "solid_fractions", "check_finite_fields"]
