@@ -56,6 +56,7 @@ def run_cmd(
     pictures: bool = typer.Option(None, "--pictures/--no-pictures", help="write PNG snapshots"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing run folder"),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
+    checkpoint_every: int = typer.Option(1, "--checkpoint-every", min=1, help="frames between checkpoints"),
 ):
     """Run a scenario or a case file, writing HDF5 frames, an XDMF index, diagnostics and pictures."""
     from refmap.case import CaseError
@@ -84,7 +85,8 @@ def run_cmd(
             pictures = True if pictures is None else pictures
         case.validate()
         sim = Simulation(case, out_dir, progress=progress, pictures=pictures, movie=movie,
-                         overwrite=overwrite, command=" ".join(["refmap"] + sys.argv[1:]))
+                         overwrite=overwrite, command=" ".join(["refmap"] + sys.argv[1:]),
+                         checkpoint_every=checkpoint_every)
     except (CaseError, ValueError, FileExistsError) as e:
         typer.secho(f"error: {e}", fg="red", err=True)
         raise typer.Exit(2) from None
