@@ -156,13 +156,14 @@ def ball_stick(n: int = 128) -> Case:
     )
 
 
-# (centre, radius, density) of the settling balls
+# (centre, radius, density) of the settling balls: a bottom row of three just above the
+# floor and two balls above them that fall into the gaps and pile up
 SETTLE_BALLS = (
-    ((-1.05, -0.55), 0.55, 1.5),
-    ((0.35, -0.75), 0.6, 2.0),
-    ((1.3, 0.05), 0.45, 1.8),
-    ((-0.55, 0.85), 0.45, 1.7),
-    ((0.75, 1.2), 0.4, 2.0),
+    ((-0.95, -1.2), 0.55, 2.0),
+    ((0.3, -1.25), 0.5, 1.8),
+    ((1.35, -0.95), 0.4, 1.5),
+    ((-0.3, -0.05), 0.45, 2.0),
+    ((0.8, 0.55), 0.35, 1.7),
 )
 
 
@@ -180,10 +181,10 @@ def settle(n: int = 128) -> Case:
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
         solids=solids,
         boundary=Boundary(),
-        fluid=FluidParams(),
+        fluid=FluidParams(lambda_f=5.0),
         numerics=Numerics(),
-        gravity=(0.0, -0.2),
-        t_end=30.0,
+        gravity=(0.0, -0.5),
+        t_end=24.0,
         frames=60,
         description=DESCRIPTIONS["settle"],
         contact=Contact(),
