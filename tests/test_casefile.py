@@ -133,6 +133,31 @@ def test_base_case_loads_with_every_section():
     assert again.to_dict() == case.to_dict()
 
 
+def test_contact_table_round_trips_and_reaches_the_model():
+    """[contact] gives Case.contact (every key, defaults for the ones left out), writes back
+    to an equal table, and Case.build() hands it to the model as its body force; without
+    the table the case has no contact and its file no [contact] table."""
+    from refmap.contact import Contact
+
+    d = copy.deepcopy(BASE)
+    d["contact"] = {"width": 2.5, "reach": 1.5, "cutoff": 0.0, "strength": 0.5, "walls": False}
+    case = case_from_dict(d).case
+    assert case.contact == Contact(width=2.5, reach=1.5, cutoff=0.0, strength=0.5, walls=False)
+    text = case_to_toml(case)
+    assert "[contact]" in text and "walls = false" in text
+    back = case_from_dict(tomllib.loads(text)).case
+    assert back == case and back.to_dict()["contact"] == case.contact.to_dict()
+    model, _ = back.build()
+    assert model.body_forces == (case.contact,)
+    d["contact"] = {"strength": 2.0}
+    assert case_from_dict(d).case.contact == Contact(strength=2.0)
+    del d["contact"]
+    case = case_from_dict(d).case
+    assert case.contact is None and "contact" not in case.to_dict()
+    assert "[contact]" not in case_to_toml(case)
+    assert case.build()[0].body_forces == ()
+
+
 # --------------------------------------------------------------------------------------------
 # round trips
 
@@ -216,12 +241,23 @@ MALFORMED = [
     (_set(("solids", 0, "law", "G"), -3), "solids[0].law.G: must be > 0 (got -3)"),
     (_rename(("grid",), "grd"), "unknown key 'grd' (did you mean 'grid'?)"),
     (_set(("boundary", "right"), "periodic"), "boundary.left: inflow segment on a periodic edge"),
-    (_set(("solids", 1, "shape", "center"), [-0.5, 0.0]), "solids[0] and solids[1] overlap at t = 0"),
-    (_set(("solids", 0, "shape"), {"type": "Disc", "center": [5.0, 5.0], "radius": 0.5}),
-     "solids[0].shape: outside the domain"),
-    (_set(("solids", 0, "shape", "b", "center"), [-0.8, 1.8]), "solids[0].shape: outside the domain"),
+    (
+        _set(("solids", 1, "shape", "center"), [-0.5, 0.0]),
+        "solids[0] and solids[1] overlap at t = 0",
+    ),
+    (
+        _set(("solids", 0, "shape"), {"type": "Disc", "center": [5.0, 5.0], "radius": 0.5}),
+        "solids[0].shape: outside the domain",
+    ),
+    (
+        _set(("solids", 0, "shape", "b", "center"), [-0.8, 1.8]),
+        "solids[0].shape: outside the domain",
+    ),
     (_set(("solids", 1, "law", "nu"), 0.7), "solids[1].law.nu: must lie in (-1, 0.5) (got 0.7)"),
-    (_set(("solids", 0, "law", "law"), "neohookean"), "solids[0].law.law: unknown material law 'neohookean' (did you mean 'neo_hookean'?)"),
+    (
+        _set(("solids", 0, "law", "law"), "neohookean"),
+        "solids[0].law.law: unknown material law 'neohookean' (did you mean 'neo_hookean'?)",
+    ),
     (_delete(("solids", 0, "law", "kappa")), "solids[0].law: missing required key 'kappa'"),
     (_set(("solids", 0, "law", "G"), "ten"), "solids[0].law.G: must be a number (got 'ten')"),
     (_set(("grid", "n"), 32.5), "grid.n: must be an integer (got 32.5)"),
@@ -237,23 +273,58 @@ MALFORMED = [
     (_rename(("fluid", "eta"), "etta"), "fluid: unknown key 'etta' (did you mean 'eta'?)"),
     (_set(("gravity",), [0.0, "down"]), "gravity[1]: must be a number (got 'down')"),
     (_set(("output", "picture_field"), "presure"), "output.picture_field: must be one of"),
-    (_rename(("solids", 0, "shape", "b", "radius"), "radus"),
-     "solids[0].shape.b: unknown key 'radus' for shape type 'Disc' (did you mean 'radius'?)"),
-    (_set(("solids", 0, "shape", "b", "radius"), -0.1), "solids[0].shape.b.radius: must be positive (got -0.1)"),
-    (_set(("solids", 0, "shape", "a", "type"), "Rectangel"),
-     "solids[0].shape.a.type: unknown shape type 'Rectangel' (did you mean 'Rectangle'?)"),
+    (
+        _rename(("solids", 0, "shape", "b", "radius"), "radus"),
+        "solids[0].shape.b: unknown key 'radus' for shape type 'Disc' (did you mean 'radius'?)",
+    ),
+    (
+        _set(("solids", 0, "shape", "b", "radius"), -0.1),
+        "solids[0].shape.b.radius: must be positive (got -0.1)",
+    ),
+    (
+        _set(("solids", 0, "shape", "a", "type"), "Rectangel"),
+        "solids[0].shape.a.type: unknown shape type 'Rectangel' (did you mean 'Rectangle'?)",
+    ),
     (_delete(("solids", 0, "shape", "type")), "solids[0].shape: missing required key 'type'"),
-    (_rename(("solids", 0, "shape"), "shap"), "solids[0]: unknown key 'shap' (did you mean 'shape'?)"),
-    (_set(("solids", 0, "strain"), [[1.0, 0.0], [0.0, -1.0]]), "solids[0].strain: must have a positive"),
+    (
+        _rename(("solids", 0, "shape"), "shap"),
+        "solids[0]: unknown key 'shap' (did you mean 'shape'?)",
+    ),
+    (
+        _set(("solids", 0, "strain"), [[1.0, 0.0], [0.0, -1.0]]),
+        "solids[0].strain: must have a positive",
+    ),
     (_set(("solids", 0, "strain"), [[1.0, 0.0], [0.0]]), "solids[0].strain[1]: too few entries"),
-    (_set(("solids", 1, "anchor", "fit_radius"), 0.01), "solids[1].anchor.fit_radius: holds no grid node"),
-    (_set(("solids", 1, "anchor", "type"), "pin"), "solids[1].anchor.type: must be one of 'region' or 'pivot' (got 'pin')"),
+    (
+        _set(("solids", 1, "anchor", "fit_radius"), 0.01),
+        "solids[1].anchor.fit_radius: holds no grid node",
+    ),
+    (
+        _set(("solids", 1, "anchor", "type"), "pin"),
+        "solids[1].anchor.type: must be one of 'region' or 'pivot' (got 'pin')",
+    ),
     (_delete(("solids", 0, "anchor", "region")), "solids[0].anchor: missing required key 'region'"),
     (_set(("boundary", "bottom"), "slp"), "boundary.bottom: must be one of"),
-    (_set(("boundary", "left", 1, "start"), 0.6), "boundary.left: segments must tile [0, 1] without gaps or overlaps"),
-    (_set(("boundary", "left", 0, "kind"), "periodic"), "boundary.left[0].kind: 'periodic' applies to a whole edge"),
+    (
+        _set(("boundary", "left", 1, "start"), 0.6),
+        "boundary.left: segments must tile [0, 1] without gaps or overlaps",
+    ),
+    (
+        _set(("boundary", "left", 0, "kind"), "periodic"),
+        "boundary.left[0].kind: 'periodic' applies to a whole edge",
+    ),
     (_set(("boundary", "left", 0, "end"), 1.5), "boundary.left[0].end: must be <= 1 (got 1.5)"),
     (_set(("contact", "cutoff"), 1.5), "contact.cutoff: must be < 1 (got 1.5)"),
+    (_set(("contact", "cutoff"), -0.1), "contact.cutoff: must be >= 0 (got -0.1)"),
+    (_set(("contact", "width"), 0.0), "contact.width: must be > 0 (got 0.0)"),
+    (_set(("contact", "reach"), float("inf")), "contact.reach: must be a finite number (got inf)"),
+    (_set(("contact", "strength"), True), "contact.strength: must be a number (got true)"),
+    (_set(("contact", "walls"), "yes"), "contact.walls: must be true or false (got 'yes')"),
+    (
+        _rename(("contact", "strength"), "strenght"),
+        "contact: unknown key 'strenght' (did you mean 'strength'?)",
+    ),
+    (_set(("contact",), 3), "contact: must be a table (got 3)"),
     (_set(("solids",), {"name": "x"}), "solids: must be a list"),
     (_set(("grid",), 5), "grid: must be a table (got 5)"),
 ]
@@ -292,10 +363,28 @@ def test_file_errors_and_overrides(tmp_path):
     good.write_text(BASE_TOML.replace("[output]", '[output]\nout = "results"'))
     plan = load_run(good)
     assert plan.out == tmp_path / "results" and plan.case.name == "base"
-    plan = load_run(good, {"n": 40, "t_end": 0.25, "frames": 5, "cfl": 0.3, "out": "elsewhere",
-                           "movie": True, "fluid.eta": 0.05, "frames_unused": None})
+    plan = load_run(
+        good,
+        {
+            "n": 40,
+            "t_end": 0.25,
+            "frames": 5,
+            "cfl": 0.3,
+            "out": "elsewhere",
+            "movie": True,
+            "fluid.eta": 0.05,
+            "frames_unused": None,
+        },
+    )
     c = plan.case
-    assert (c.grid.nx, c.grid.ny, c.t_end, c.frames, c.numerics.cfl, c.fluid.eta) == (40, 40, 0.25, 5, 0.3, 0.05)
+    assert (c.grid.nx, c.grid.ny, c.t_end, c.frames, c.numerics.cfl, c.fluid.eta) == (
+        40,
+        40,
+        0.25,
+        5,
+        0.3,
+        0.05,
+    )
     assert plan.out == Path("elsewhere") and plan.movie
     with pytest.raises(CaseFileError, match=r"time.t_end: must be > 0 \(got -1"):
         load_case(good, {"t_end": -1.0})
@@ -315,9 +404,38 @@ def test_file_errors_and_overrides(tmp_path):
 # random malformed input: only CaseError, never another exception
 
 BAD_VALUES = [
-    None, True, False, 0, -1, 1, 3, 10**6, 10**30, 10**400, -1e300, 1e300, 0.0, -0.5, 1.5,
-    math.nan, math.inf, -math.inf, "", "x", "wall", "periodic", "Disc", "neo_hookean", [], [1],
-    [1, 2, 3], [[1, 2], [3]], [0.5, 0.5], {}, {"type": "Disc"}, {"x": 1},
+    None,
+    True,
+    False,
+    0,
+    -1,
+    1,
+    3,
+    10**6,
+    10**30,
+    10**400,
+    -1e300,
+    1e300,
+    0.0,
+    -0.5,
+    1.5,
+    math.nan,
+    math.inf,
+    -math.inf,
+    "",
+    "x",
+    "wall",
+    "periodic",
+    "Disc",
+    "neo_hookean",
+    [],
+    [1],
+    [1, 2, 3],
+    [[1, 2], [3]],
+    [0.5, 0.5],
+    {},
+    {"type": "Disc"},
+    {"x": 1},
     {"type": "Disc", "center": [0.0, 0.0], "radius": 0.5},
 ]
 
@@ -346,7 +464,11 @@ def malformed_cases(draw):
             parent = parent[p]
         key = path[-1]
         value = parent[key]
-        op = draw(st.sampled_from(["delete", "replace", "number", "unknown", "wrap_list", "wrap_table", "unwrap"]))
+        op = draw(
+            st.sampled_from(
+                ["delete", "replace", "number", "unknown", "wrap_list", "wrap_table", "unwrap"]
+            )
+        )
         if op == "delete":
             del parent[key]
         elif op == "replace":
@@ -354,9 +476,13 @@ def malformed_cases(draw):
         elif op == "number":
             parent[key] = draw(st.one_of(st.floats(), st.integers(-(10**20), 10**20)))
         elif op == "unknown":
-            target = value if isinstance(value, dict) else parent if isinstance(parent, dict) else None
+            target = (
+                value if isinstance(value, dict) else parent if isinstance(parent, dict) else None
+            )
             if target is not None:
-                target[draw(st.sampled_from(["grd", "colour", "radius", "type", "G", "n", "kind"]))] = 1
+                target[
+                    draw(st.sampled_from(["grd", "colour", "radius", "type", "G", "n", "kind"]))
+                ] = 1
         elif op == "wrap_list":
             parent[key] = [value]
         elif op == "wrap_table":
@@ -382,13 +508,21 @@ def test_random_malformed_cases_raise_only_case_errors(doc):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.recursive(
-    st.one_of(st.booleans(), st.integers(-(2**63), 2**63 - 1), st.floats(allow_nan=False),
-              st.text(max_size=12)),
-    lambda children: st.lists(children, max_size=3)
-    | st.dictionaries(st.text(min_size=1, max_size=6), children, min_size=1, max_size=3),
-    max_leaves=10,
-).filter(lambda v: isinstance(v, dict)))
+@given(
+    st.recursive(
+        st.one_of(
+            st.booleans(),
+            st.integers(-(2**63), 2**63 - 1),
+            st.floats(allow_nan=False),
+            st.text(max_size=12),
+        ),
+        lambda children: (
+            st.lists(children, max_size=3)
+            | st.dictionaries(st.text(min_size=1, max_size=6), children, min_size=1, max_size=3)
+        ),
+        max_leaves=10,
+    ).filter(lambda v: isinstance(v, dict))
+)
 def test_toml_writer_round_trips(doc):
     assert tomllib.loads(to_toml(doc)) == doc
 
@@ -417,7 +551,16 @@ def test_mask_shape_from_npy_has_the_disc_area_and_distance(tmp_path):
     assert build_shape(u.to_dict()) == u
     assert "ArrayShape" not in SHAPES  # the geometry registry keeps its built-in types
     # float masks and an sdf array give the same kind of shape
-    np.save(tmp_path / "sdf.npy", np.asarray(disc(*np.meshgrid(np.linspace(-0.99, 0.99, 100), np.linspace(-0.99, 0.99, 100), indexing="ij"))))
+    np.save(
+        tmp_path / "sdf.npy",
+        np.asarray(
+            disc(
+                *np.meshgrid(
+                    np.linspace(-0.99, 0.99, 100), np.linspace(-0.99, 0.99, 100), indexing="ij"
+                )
+            )
+        ),
+    )
     sdf = ArrayShape(str(tmp_path / "sdf.npy"), (-1.0, 1.0, -1.0, 1.0), mode="sdf")
     assert sdf.area(400) == pytest.approx(math.pi * 0.36, rel=0.01)
 
@@ -461,9 +604,16 @@ shape = {type = "mask", file = "blob.png", extent = [1.0, 3.0, 0.0, 1.0]}
 
 
 def test_bad_mask_files_are_named(tmp_path):
-    base = {"name": "m", "grid": {"n": 32}, "solids": [{"law": {"law": "neo_hookean", "G": 1, "kappa": 1},
-                                                         "shape": {"type": "mask", "file": "nope.npy",
-                                                                   "extent": [-1, 1, -1, 1]}}]}
+    base = {
+        "name": "m",
+        "grid": {"n": 32},
+        "solids": [
+            {
+                "law": {"law": "neo_hookean", "G": 1, "kappa": 1},
+                "shape": {"type": "mask", "file": "nope.npy", "extent": [-1, 1, -1, 1]},
+            }
+        ],
+    }
     with pytest.raises(CaseFileError, match=r"solids\[0\]\.shape\.file: names no readable file"):
         case_from_dict(base, base_dir=tmp_path)
     np.save(tmp_path / "empty.npy", np.zeros((10, 10), dtype=bool))
@@ -475,7 +625,9 @@ def test_bad_mask_files_are_named(tmp_path):
     with pytest.raises(CaseFileError, match=r"solids\[0\]\.shape\.extent: needs x1 > x0"):
         case_from_dict(base, base_dir=tmp_path)
     base["solids"][0]["shape"].update(extent=[-1, 1, -1, 1], mode="sdf")
-    with pytest.raises(CaseFileError, match=r"solids\[0\]\.shape: unknown key 'mode' for shape type 'mask'"):
+    with pytest.raises(
+        CaseFileError, match=r"solids\[0\]\.shape: unknown key 'mode' for shape type 'mask'"
+    ):
         case_from_dict(base, base_dir=tmp_path)
 
 
@@ -517,8 +669,9 @@ def test_unwritable_cases_and_unknown_scenarios_are_named():
 
     case = case_from_dict(BASE).case
     law = EnergyLaw(neo_hookean_energy, {"G": 1.0, "kappa": 1.0})
-    bad = case.replace(solids=(case.solids[0], case.solids[1].__class__(
-        **{**case.solids[1].__dict__, "law": law})))
+    bad = case.replace(
+        solids=(case.solids[0], case.solids[1].__class__(**{**case.solids[1].__dict__, "law": law}))
+    )
     with pytest.raises(CaseFileError, match=r"solids\[1\]\.law: cannot be written to a case file"):
         case_to_toml(bad)
     with pytest.raises(CaseError, match="unknown scenario 'nope'"):

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import refmap  # noqa: F401
-from refmap import scenarios_fssi
 from refmap.boundary import Boundary
+from refmap.case import CaseError
 from refmap.contact import Contact, contact_diagnostics, contact_force
 from refmap.geometry import Disc
 from refmap.grid import Grid
@@ -268,9 +268,25 @@ def test_fssi_scenarios_are_registered_with_contact():
         assert model.n_solids >= 2
     assert 3 <= len(get_case("settle", 32).solids) <= 6
     assert all(1.5 <= s.law.rho0 <= 2.0 for s in get_case("settle", 32).solids)
-    # a Case without contact builds a model without it
-    model, _ = scenarios_fssi.build(get_case("settle", 32).replace(contact=None))
-    assert model.body_forces == ()
+    # a Case without contact builds a model without it, and has no contact entry
+    case = get_case("settle", 32).replace(contact=None)
+    model, _ = case.build()
+    assert model.body_forces == () and "contact" not in case.to_dict()
+
+
+def test_case_contact_field_is_checked_before_any_compile():
+    """A bad contact value raises CaseError (a ValueError) when the Case is made."""
+    case = get_case("two_balls", 32)
+    with pytest.raises(CaseError, match="contact must be a refmap.contact.Contact"):
+        case.replace(contact={"strength": 1.0})
+    with pytest.raises(ValueError, match="walls"):
+        Contact(walls="no")
+    with pytest.raises(ValueError, match="width"):
+        Contact(width=True)
+    bad = Contact()
+    object.__setattr__(bad, "strength", -2.0)  # bypassing the constructor's check
+    with pytest.raises(CaseError, match="contact: Contact strength must be"):
+        case.replace(contact=bad)
 
 
 @pytest.mark.parametrize("name", ["two_balls", "ball_stick", "settle"])

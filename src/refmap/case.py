@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +35,24 @@ class Case:
     frames: int = 10
     picture_field: str = "pressure"
     description: str = ""
+    #: contact between the solids and against the walls: a :class:`refmap.contact.Contact`
+    #: (passed to the model as a body force), or None for no contact
+    contact: Any = None
+
+    def __post_init__(self):
+        # checked at construction (and on every replace), before anything is compiled
+        if self.contact is not None:
+            from refmap.contact import Contact
+
+            if not isinstance(self.contact, Contact):
+                raise CaseError(
+                    f"case {self.name!r}: contact must be a refmap.contact.Contact or None, "
+                    f"got {self.contact!r}"
+                )
+            try:
+                self.contact.check()
+            except ValueError as e:
+                raise CaseError(f"case {self.name!r}: contact: {e}") from None
 
     def replace(self, **kw) -> Case:
         return replace(self, **kw)
@@ -95,6 +114,7 @@ class Case:
             "t_end": self.t_end,
             "frames": self.frames,
             "picture_field": self.picture_field,
+            **({} if self.contact is None else {"contact": self.contact.to_dict()}),
             "solids": [
                 {
                     "name": s.name,
@@ -110,12 +130,14 @@ class Case:
         }
 
     def build(self):
-        """Validated (model, params) pair."""
+        """Validated (model, params) pair; the model carries ``contact`` (if any) as a body
+        force."""
         from refmap.model import Model
         from refmap.state import Params
 
         self.validate()
-        model = Model(self.grid, self.solids, self.boundary, self.numerics)
+        forces = () if self.contact is None else (self.contact,)
+        model = Model(self.grid, self.solids, self.boundary, self.numerics, body_forces=forces)
         params = Params(fluid=self.fluid, laws=tuple(s.law for s in self.solids),
                         gravity=tuple(float(x) for x in self.gravity))
         return model, params

@@ -66,6 +66,7 @@ from pydantic import (
 from refmap.anchors import PivotAnchor, RegionAnchor
 from refmap.boundary import EDGES, Boundary, Segment
 from refmap.case import Case, CaseError
+from refmap.contact import Contact
 from refmap.geometry import SHAPES, Shape
 from refmap.grid import Grid
 from refmap.materials import LAWS, law_from_dict
@@ -94,7 +95,17 @@ __all__ = [
 MAX_CELLS = 16384
 MAX_FRAMES = 1_000_000
 #: fields that ``Simulation`` can draw (2D node or corner fields)
-PICTURE_FIELDS = ("pressure", "p_fluid", "u", "v", "rho_f", "rho", "sigma_xx", "sigma_xy", "sigma_yy")
+PICTURE_FIELDS = (
+    "pressure",
+    "p_fluid",
+    "u",
+    "v",
+    "rho_f",
+    "rho",
+    "sigma_xx",
+    "sigma_xy",
+    "sigma_yy",
+)
 EDGE_WORDS = ("wall", "slip", "outflow", "periodic")
 
 # --------------------------------------------------------------------------------------------
@@ -208,8 +219,12 @@ def _describe_pydantic(err: dict) -> tuple[tuple, str]:
     if typ in messages:
         return loc, messages[typ] + got
     if typ in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
-        op = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<",
-              "less_than_equal": "<="}[typ]
+        op = {
+            "greater_than": ">",
+            "greater_than_equal": ">=",
+            "less_than": "<",
+            "less_than_equal": "<=",
+        }[typ]
         bound = next(iter(v for k, v in ctx.items() if k in ("gt", "ge", "lt", "le")), "?")
         if isinstance(bound, float) and bound.is_integer():
             bound = int(bound)
@@ -269,8 +284,9 @@ class _Table(BaseModel):
         return data
 
 
-def _spec_from_dataclass(name: str, cls: type, constraints: dict[str, dict],
-                         only: list[str] | None = None) -> type[_Table]:
+def _spec_from_dataclass(
+    name: str, cls: type, constraints: dict[str, dict], only: list[str] | None = None
+) -> type[_Table]:
     """A table model with one key per field of the dataclass ``cls`` (optional with the
     dataclass default where it has one); scalar and pair fields are typed, others Any."""
     scalar = {
@@ -305,37 +321,38 @@ def _spec_from_dataclass(name: str, cls: type, constraints: dict[str, dict],
 
 
 FluidSpec = _spec_from_dataclass(
-    "FluidSpec", FluidParams,
+    "FluidSpec",
+    FluidParams,
     {"rho0": {"gt": 0}, "lambda_f": {"gt": 0}, "eta": {"ge": 0}, "extra_viscosity": {"ge": 0}},
 )
 NumericsSpec = _spec_from_dataclass(
-    "NumericsSpec", Numerics,
+    "NumericsSpec",
+    Numerics,
     {
-        "blur_width": {"gt": 0}, "band": {"gt": 0}, "stress_band": {"gt": 0},
-        "pin_rate": {"ge": 0}, "pin_substeps": {"ge": 0}, "pin_inner": {"ge": 0},
-        "redistance_iters": {"ge": 0}, "smooth_coef": {"ge": 0}, "smooth_max_sweeps": {"ge": 0},
-        "smooth_ratio": {"ge": 0}, "smooth_atol": {"ge": 0}, "fixed_smooth_sweeps": {"ge": 0},
-        "cfl": {"gt": 0, "le": 1}, "dt_max": {"gt": 0}, "dt_fixed": {"gt": 0}, "phi_max": {"gt": 0},
+        "blur_width": {"gt": 0},
+        "band": {"gt": 0},
+        "stress_band": {"gt": 0},
+        "pin_rate": {"ge": 0},
+        "pin_substeps": {"ge": 0},
+        "pin_inner": {"ge": 0},
+        "redistance_iters": {"ge": 0},
+        "smooth_coef": {"ge": 0},
+        "smooth_max_sweeps": {"ge": 0},
+        "smooth_ratio": {"ge": 0},
+        "smooth_atol": {"ge": 0},
+        "fixed_smooth_sweeps": {"ge": 0},
+        "cfl": {"gt": 0, "le": 1},
+        "dt_max": {"gt": 0},
+        "dt_fixed": {"gt": 0},
+        "phi_max": {"gt": 0},
     },
 )
 
 
-def _contact_class():
-    try:
-        from refmap.contact import Contact
-    except ImportError:  # pragma: no cover - contact module absent
-        return None
-    return Contact
-
-
-_Contact = _contact_class()
-ContactSpec = (
-    _spec_from_dataclass(
-        "ContactSpec", _Contact,
-        {"width": {"gt": 0}, "cutoff": {"ge": 0, "lt": 1}, "strength": {"gt": 0}, "reach": {"gt": 0}},
-    )
-    if _Contact is not None
-    else None
+ContactSpec = _spec_from_dataclass(
+    "ContactSpec",
+    Contact,
+    {"width": {"gt": 0}, "cutoff": {"ge": 0, "lt": 1}, "strength": {"gt": 0}, "reach": {"gt": 0}},
 )
 
 
@@ -352,8 +369,11 @@ class GridSpec(_Table):
     def _consistent(self):
         if self.n is not None and (self.nx is not None or self.ny is not None):
             key = "nx" if self.nx is not None else "ny"
-            raise _PathError((key,), f"give either n or nx and ny, not both (got n = {self.n}, "
-                                     f"{key} = {getattr(self, key)})")
+            raise _PathError(
+                (key,),
+                f"give either n or nx and ny, not both (got n = {self.n}, "
+                f"{key} = {getattr(self, key)})",
+            )
         if self.n is None and (self.nx is None or self.ny is None):
             missing = "ny" if self.nx is not None else "nx" if self.ny is not None else "n"
             raise _PathError((), f"missing required key {missing!r} (give n, or nx and ny)")
@@ -367,8 +387,11 @@ class GridSpec(_Table):
         if self.n is not None:
             ratio = ly / lx
             if not (8 <= self.n * ratio <= MAX_CELLS):
-                raise _PathError(("n",), f"gives ny = n * (by - ay) / (bx - ax) = {self.n * ratio:.4g} "
-                                         f"cells, outside [8, {MAX_CELLS}]; give nx and ny (got {self.n})")
+                raise _PathError(
+                    ("n",),
+                    f"gives ny = n * (by - ay) / (bx - ax) = {self.n * ratio:.4g} "
+                    f"cells, outside [8, {MAX_CELLS}]; give nx and ny (got {self.n})",
+                )
         return self
 
     def cells(self) -> tuple[int, int]:
@@ -384,7 +407,9 @@ def _derived_ny(n, ax, bx, ay, by) -> int:
 
 class TimeSpec(_Table):
     t_end: Pos = Case.__dataclass_fields__["t_end"].default
-    frames: Annotated[int, Strict(), Field(ge=1, le=MAX_FRAMES)] = Case.__dataclass_fields__["frames"].default
+    frames: Annotated[int, Strict(), Field(ge=1, le=MAX_FRAMES)] = Case.__dataclass_fields__[
+        "frames"
+    ].default
 
 
 class OutputSpec(_Table):
@@ -407,8 +432,11 @@ class SegmentSpec(_Table):
     @classmethod
     def _kind(cls, v):
         if v == "periodic":
-            raise _PathError((), "'periodic' applies to a whole edge: write the edge as "
-                                 "\"periodic\" instead of a list of segments (got 'periodic')")
+            raise _PathError(
+                (),
+                "'periodic' applies to a whole edge: write the edge as "
+                "\"periodic\" instead of a list of segments (got 'periodic')",
+            )
         return v
 
     @model_validator(mode="after")
@@ -418,8 +446,15 @@ class SegmentSpec(_Table):
         return self
 
     def segment(self) -> Segment:
-        return Segment(kind=self.kind, start=self.start, end=self.end, velocity=self.velocity,
-                       profile=self.profile, ramp=self.ramp, omega=self.omega)
+        return Segment(
+            kind=self.kind,
+            start=self.start,
+            end=self.end,
+            velocity=self.velocity,
+            profile=self.profile,
+            ramp=self.ramp,
+            omega=self.omega,
+        )
 
 
 def _edge(v: Any):
@@ -428,16 +463,24 @@ def _edge(v: Any):
         if v not in EDGE_WORDS:
             hint = _did_you_mean(v, EDGE_WORDS)
             if v in ("velocity", "inflow"):
-                hint = ('; a prescribed velocity needs a segment table, e.g. '
-                        '[{kind = "velocity", velocity = [0.1, 0.0]}]')
-            raise _PathError((), f"must be one of {', '.join(map(repr, EDGE_WORDS))} or a list of "
-                                 f"segment tables (got {v!r}){hint}")
+                hint = (
+                    "; a prescribed velocity needs a segment table, e.g. "
+                    '[{kind = "velocity", velocity = [0.1, 0.0]}]'
+                )
+            raise _PathError(
+                (),
+                f"must be one of {', '.join(map(repr, EDGE_WORDS))} or a list of "
+                f"segment tables (got {v!r}){hint}",
+            )
         return v
     if isinstance(v, Mapping):
         v = [v]
     if not isinstance(v, (list, tuple)):
-        raise _PathError((), f"must be one of {', '.join(map(repr, EDGE_WORDS))} or a list of "
-                             f"segment tables (got {_fmt_value(v)})")
+        raise _PathError(
+            (),
+            f"must be one of {', '.join(map(repr, EDGE_WORDS))} or a list of "
+            f"segment tables (got {_fmt_value(v)})",
+        )
     if not v:
         raise _PathError((), "needs at least one segment (got [])")
     segs = []
@@ -478,9 +521,12 @@ class BoundarySpec(_Table):
                 continue
             other, this, e = (a, b, eb) if ea == "periodic" else (b, a, ea)
             inflow = not isinstance(e, str) and any(s.kind == "velocity" for s in e)
-            what = "inflow segment on a periodic edge" if inflow else "must be \"periodic\""
-            raise _PathError((this,), f"{what}: {other} is \"periodic\" and periodic edges come in "
-                                      f"pairs (got {_fmt_value(_edge_dict(e))})")
+            what = "inflow segment on a periodic edge" if inflow else 'must be "periodic"'
+            raise _PathError(
+                (this,),
+                f'{what}: {other} is "periodic" and periodic edges come in '
+                f"pairs (got {_fmt_value(_edge_dict(e))})",
+            )
         return self
 
     def boundary(self) -> Boundary:
@@ -546,12 +592,17 @@ def build_shape(d: Any, base_dir: str | os.PathLike | None = None) -> Shape:
         name = "ArrayShape"
     cls = registry.get(name) or {k.lower(): v for k, v in registry.items()}.get(name.lower())
     if cls is None:
-        raise _PathError(("type",), f"unknown shape type {name!r}{_did_you_mean(name, known)}; "
-                                    f"known types: {', '.join(known)}")
+        raise _PathError(
+            ("type",),
+            f"unknown shape type {name!r}{_did_you_mean(name, known)}; "
+            f"known types: {', '.join(known)}",
+        )
     if cls is ArrayShape and isinstance(d.get("file"), str) and base_dir is not None:
         d = {**d, "file": str(Path(base_dir, d["file"]))}  # relative to the case file
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init and not f.name.startswith("_")}
-    _check_keys({k: v for k, v in d.items() if k != "type"}, fields, f" for shape type {cls.__name__!r}")
+    _check_keys(
+        {k: v for k, v in d.items() if k != "type"}, fields, f" for shape type {cls.__name__!r}"
+    )
     kwargs: dict[str, Any] = {}
     for key, value in d.items():
         if key == "type":
@@ -578,8 +629,13 @@ def build_shape(d: Any, base_dir: str | os.PathLike | None = None) -> Shape:
             kwargs[key] = value
         else:
             kwargs[key] = tuple(value) if isinstance(value, list) else value
-    missing = [k for k, f in fields.items() if k not in kwargs and f.default is dataclasses.MISSING
-               and f.default_factory is dataclasses.MISSING]
+    missing = [
+        k
+        for k, f in fields.items()
+        if k not in kwargs
+        and f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+    ]
     if missing:
         raise _PathError((), f"missing required key {missing[0]!r} for shape type {cls.__name__!r}")
     try:
@@ -600,18 +656,29 @@ _POSITIVE_LAW_KEYS = ("G", "kappa", "rho0", "mu", "E")
 def build_law(d: Any):
     """A material law from ``{law = "neo_hookean", G = 10, kappa = 10, rho0 = 1}``."""
     if not isinstance(d, Mapping):
-        raise _PathError((), f"must be a table such as {{law = \"neo_hookean\", G = 10, kappa = 10}} "
-                             f"(got {_fmt_value(d)})")
+        raise _PathError(
+            (),
+            f'must be a table such as {{law = "neo_hookean", G = 10, kappa = 10}} '
+            f"(got {_fmt_value(d)})",
+        )
     if "law" not in d:
-        raise _PathError((), f"missing required key 'law' (one of {', '.join(map(repr, sorted(LAWS)))})")
+        raise _PathError(
+            (), f"missing required key 'law' (one of {', '.join(map(repr, sorted(LAWS)))})"
+        )
     key = d["law"]
     if not isinstance(key, str) or key not in LAWS:
-        raise _PathError(("law",), f"unknown material law {_fmt_value(key)}"
-                                   f"{_did_you_mean(key, LAWS)}; known laws: {', '.join(sorted(LAWS))}")
+        raise _PathError(
+            ("law",),
+            f"unknown material law {_fmt_value(key)}"
+            f"{_did_you_mean(key, LAWS)}; known laws: {', '.join(sorted(LAWS))}",
+        )
     cls = LAWS[key]
     names = [f.name for f in dataclasses.fields(cls) if not f.metadata.get("static", False)]
-    required = [f.name for f in dataclasses.fields(cls)
-                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    required = [
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
     allowed = set(names)
     params = {k: v for k, v in d.items() if k != "law"}
     alternatives = []
@@ -628,8 +695,12 @@ def build_law(d: Any):
     rest = set(params) - {"rho0"}
     if not any(rest == alt for alt in alternatives):
         if rest - set(names):
-            choices = " or ".join([" and ".join(required)] + [" and ".join(sorted(a)) for a in alternatives])
-            raise _PathError((), f"law {key!r} takes {choices} (got keys {', '.join(sorted(rest))})")
+            choices = " or ".join(
+                [" and ".join(required)] + [" and ".join(sorted(a)) for a in alternatives]
+            )
+            raise _PathError(
+                (), f"law {key!r} takes {choices} (got keys {', '.join(sorted(rest))})"
+            )
         missing = [n for n in required if n not in params]
         if missing:
             raise _PathError((), f"missing required key {missing[0]!r} for law {key!r}")
@@ -662,8 +733,9 @@ def _anchor_spec(kind: str) -> type[_Table]:
     if kind not in _ANCHOR_SPECS:
         cls = ANCHORS[kind]
         plain = [f for f in dataclasses.fields(cls) if not _is_shape_field(f)]
-        _ANCHOR_SPECS[kind] = _spec_from_dataclass(f"{kind.title()}AnchorSpec", cls, _ANCHOR_CONSTRAINTS,
-                                                   only=[f.name for f in plain])
+        _ANCHOR_SPECS[kind] = _spec_from_dataclass(
+            f"{kind.title()}AnchorSpec", cls, _ANCHOR_CONSTRAINTS, only=[f.name for f in plain]
+        )
     return _ANCHOR_SPECS[kind]
 
 
@@ -675,11 +747,16 @@ def build_anchor(d: Any, base_dir=None):
     if not isinstance(d, Mapping):
         raise _PathError((), f"must be a table with a 'type' key (got {_fmt_value(d)})")
     if "type" not in d:
-        raise _PathError((), f"missing required key 'type' (one of {', '.join(map(repr, ANCHORS))})")
+        raise _PathError(
+            (), f"missing required key 'type' (one of {', '.join(map(repr, ANCHORS))})"
+        )
     kind = d["type"]
     if not isinstance(kind, str) or kind not in ANCHORS:
-        raise _PathError(("type",), f"must be one of {' or '.join(map(repr, ANCHORS))} (got "
-                                    f"{_fmt_value(kind)}){_did_you_mean(kind, ANCHORS)}")
+        raise _PathError(
+            ("type",),
+            f"must be one of {' or '.join(map(repr, ANCHORS))} (got "
+            f"{_fmt_value(kind)}){_did_you_mean(kind, ANCHORS)}",
+        )
     cls = ANCHORS[kind]
     fields = {f.name: f for f in dataclasses.fields(cls)}
     rest = {k: v for k, v in d.items() if k != "type"}
@@ -689,8 +766,11 @@ def build_anchor(d: Any, base_dir=None):
         if _is_shape_field(f):
             if name not in rest:
                 if f.default is dataclasses.MISSING:
-                    raise _PathError((), f"missing required key {name!r} for a {kind} anchor "
-                                         "(a shape table, in current coordinates)")
+                    raise _PathError(
+                        (),
+                        f"missing required key {name!r} for a {kind} anchor "
+                        "(a shape table, in current coordinates)",
+                    )
                 continue
             try:
                 kwargs[name] = build_shape(rest.pop(name), base_dir)
@@ -736,8 +816,11 @@ class SolidSpec(_Table):
         (a, b), (c, d) = self.strain
         det = a * d - b * c
         if not (math.isfinite(det) and det > 0):
-            raise _PathError(("strain",), f"must have a positive, finite determinant (det = {det:.4g}; "
-                                          f"got {_fmt_value([list(r) for r in self.strain])})")
+            raise _PathError(
+                ("strain",),
+                f"must have a positive, finite determinant (det = {det:.4g}; "
+                f"got {_fmt_value([list(r) for r in self.strain])})",
+            )
         return self
 
 
@@ -754,8 +837,7 @@ def _case_spec_model():
         boundary=(BoundarySpec, None),
         solids=(list[SolidSpec], []),
     )
-    if ContactSpec is not None:
-        fields["contact"] = (ContactSpec | None, None)
+    fields["contact"] = (ContactSpec | None, None)
     return create_model("CaseSpec", __base__=_Table, **fields)
 
 
@@ -799,8 +881,10 @@ def _read_array(file: str, mode: str, invert: bool) -> tuple[np.ndarray, bool]:
             a = np.load(p, allow_pickle=False)
         elif suffix in (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".gif"):
             if mode == "sdf":
-                raise ValueError("ArrayShape: parameter 'file' must be a .npy array for type 'sdf' "
-                                 f"(a picture can only be a mask), got {file}")
+                raise ValueError(
+                    "ArrayShape: parameter 'file' must be a .npy array for type 'sdf' "
+                    f"(a picture can only be a mask), got {file}"
+                )
             import matplotlib.image as mpimg
 
             img = np.asarray(mpimg.imread(p), dtype=float)
@@ -814,20 +898,26 @@ def _read_array(file: str, mode: str, invert: bool) -> tuple[np.ndarray, bool]:
                 gray = img / 255.0 if img.max() > 1.0 else img
             a = (gray < 0.5)[::-1].T  # dark pixels are solid; rows run down the picture
         else:
-            raise ValueError(f"ArrayShape: parameter 'file' must be a .npy array or a picture "
-                             f"(.png), got {file}")
+            raise ValueError(
+                f"ArrayShape: parameter 'file' must be a .npy array or a picture (.png), got {file}"
+            )
     except ValueError:
         raise
     except Exception as e:  # noqa: BLE001 - any unreadable file is a bad value
-        raise ValueError(f"ArrayShape: parameter 'file' could not be read ({type(e).__name__}: {e}): "
-                         f"{file}") from None
+        raise ValueError(
+            f"ArrayShape: parameter 'file' could not be read ({type(e).__name__}: {e}): {file}"
+        ) from None
     a = np.asarray(a)
     if a.ndim != 2 or min(a.shape) < 2:
-        raise ValueError(f"ArrayShape: parameter 'file' must hold a 2D array of at least 2 x 2 "
-                         f"values, got shape {a.shape} in {file}")
+        raise ValueError(
+            f"ArrayShape: parameter 'file' must hold a 2D array of at least 2 x 2 "
+            f"values, got shape {a.shape} in {file}"
+        )
     if a.dtype.kind not in "biuf":
-        raise ValueError(f"ArrayShape: parameter 'file' must hold numbers or booleans, got dtype "
-                         f"{a.dtype} in {file}")
+        raise ValueError(
+            f"ArrayShape: parameter 'file' must hold numbers or booleans, got dtype "
+            f"{a.dtype} in {file}"
+        )
     return a, mode == "mask"
 
 
@@ -835,9 +925,11 @@ def _mask_sdf(inside: np.ndarray, dx: float, dy: float) -> np.ndarray:
     try:
         from scipy.ndimage import distance_transform_edt
     except ImportError:  # pragma: no cover - scipy is a test dependency
-        raise ValueError("ArrayShape: parameter 'mode' 'mask' needs scipy (pip install scipy) "
-                         "to build a signed distance; or give a signed-distance array with "
-                         "type = \"sdf\"") from None
+        raise ValueError(
+            "ArrayShape: parameter 'mode' 'mask' needs scipy (pip install scipy) "
+            "to build a signed distance; or give a signed-distance array with "
+            'type = "sdf"'
+        ) from None
     d_out = distance_transform_edt(~inside, sampling=(dx, dy))  # outside: distance to inside
     d_in = distance_transform_edt(inside, sampling=(dx, dy))  # inside: distance to outside
     half = 0.5 * min(dx, dy)
@@ -882,15 +974,23 @@ class ArrayShape(Shape):
         except (TypeError, ValueError):
             ext = ()
         if len(ext) != 4 or not all(math.isfinite(e) for e in ext):
-            raise ValueError(f"{cls}: parameter 'extent' must be four finite numbers [x0, x1, y0, y1], "
-                             f"got extent={self.extent!r}")
+            raise ValueError(
+                f"{cls}: parameter 'extent' must be four finite numbers [x0, x1, y0, y1], "
+                f"got extent={self.extent!r}"
+            )
         if not (ext[1] > ext[0] and ext[3] > ext[2]):
-            raise ValueError(f"{cls}: parameter 'extent' needs x1 > x0 and y1 > y0, got extent={ext!r}")
+            raise ValueError(
+                f"{cls}: parameter 'extent' needs x1 > x0 and y1 > y0, got extent={ext!r}"
+            )
         object.__setattr__(self, "extent", ext)
         if self.mode not in ("mask", "sdf"):
-            raise ValueError(f"{cls}: parameter 'mode' must be 'mask' or 'sdf', got mode={self.mode!r}")
+            raise ValueError(
+                f"{cls}: parameter 'mode' must be 'mask' or 'sdf', got mode={self.mode!r}"
+            )
         if not isinstance(self.invert, (bool, np.bool_)):
-            raise ValueError(f"{cls}: parameter 'invert' must be true or false, got invert={self.invert!r}")
+            raise ValueError(
+                f"{cls}: parameter 'invert' must be true or false, got invert={self.invert!r}"
+            )
         object.__setattr__(self, "invert", bool(self.invert))
         a, is_mask = _read_array(self.file, self.mode, self.invert)
         nx, ny = a.shape
@@ -901,8 +1001,10 @@ class ArrayShape(Shape):
                 inside = ~inside
             if not inside.any() or inside.all():
                 what = "no" if not inside.any() else "only"
-                raise ValueError(f"{cls}: parameter 'file' must hold a mask with inside and outside "
-                                 f"pixels, got {what} inside pixels in {self.file}")
+                raise ValueError(
+                    f"{cls}: parameter 'file' must hold a mask with inside and outside "
+                    f"pixels, got {what} inside pixels in {self.file}"
+                )
             sdf = _mask_sdf(inside, dx, dy)
         else:
             sdf = np.asarray(a, dtype=float)
@@ -911,8 +1013,10 @@ class ArrayShape(Shape):
             if self.invert:
                 sdf = -sdf
             if not (sdf < 0).any():
-                raise ValueError(f"{cls}: parameter 'file' holds a signed distance with no negative "
-                                 f"(inside) value in {self.file}")
+                raise ValueError(
+                    f"{cls}: parameter 'file' holds a signed distance with no negative "
+                    f"(inside) value in {self.file}"
+                )
         object.__setattr__(self, "_data", _SampledSDF(sdf, ext))
 
     def _sdf(self, X, Y):
@@ -929,8 +1033,12 @@ class ArrayShape(Shape):
         j0 = jnp.clip(jnp.floor(wc).astype(jnp.int32), 0, ny - 2)
         tu = uc - i0
         tw = wc - j0
-        f = ((1 - tu) * (1 - tw) * v[i0, j0] + tu * (1 - tw) * v[i0 + 1, j0]
-             + (1 - tu) * tw * v[i0, j0 + 1] + tu * tw * v[i0 + 1, j0 + 1])
+        f = (
+            (1 - tu) * (1 - tw) * v[i0, j0]
+            + tu * (1 - tw) * v[i0 + 1, j0]
+            + (1 - tu) * tw * v[i0, j0 + 1]
+            + tu * tw * v[i0 + 1, j0 + 1]
+        )
         return f + jnp.sqrt(((u - uc) * dx) ** 2 + ((w - wc) * dy) ** 2)
 
     def bbox(self):
@@ -939,12 +1047,21 @@ class ArrayShape(Shape):
         nx, ny = v.shape
         dx, dy = (x1 - x0) / nx, (y1 - y0) / ny
         ii, jj = np.nonzero(v < 0)
-        return (x0 + max(ii.min() - 0.5, 0) * dx, x0 + min(ii.max() + 1.5, nx) * dx,
-                y0 + max(jj.min() - 0.5, 0) * dy, y0 + min(jj.max() + 1.5, ny) * dy)
+        return (
+            x0 + max(ii.min() - 0.5, 0) * dx,
+            x0 + min(ii.max() + 1.5, nx) * dx,
+            y0 + max(jj.min() - 0.5, 0) * dy,
+            y0 + min(jj.max() + 1.5, ny) * dy,
+        )
 
     def to_dict(self):
-        return {"type": "ArrayShape", "file": self.file, "extent": list(self.extent),
-                "mode": self.mode, "invert": self.invert}
+        return {
+            "type": "ArrayShape",
+            "file": self.file,
+            "extent": list(self.extent),
+            "mode": self.mode,
+            "invert": self.invert,
+        }
 
 
 def register_array_shape() -> None:
@@ -969,7 +1086,11 @@ class RunPlan:
     @property
     def out_dir(self) -> Path:
         """``out``, or ``runs/NAME_NX`` (as ``refmap run SCENARIO`` uses)."""
-        return self.out if self.out is not None else Path("runs") / f"{self.case.name}_{self.case.grid.nx}"
+        return (
+            self.out
+            if self.out is not None
+            else Path("runs") / f"{self.case.name}_{self.case.grid.nx}"
+        )
 
 
 #: override key -> key path in the case file
@@ -1007,15 +1128,23 @@ def _apply_overrides(data: dict, overrides: Mapping | None) -> tuple[dict, Any]:
         else:
             raise CaseFileError(
                 f"unknown override {key!r}{_did_you_mean(key, list(OVERRIDES) + ['out'])}; use one of "
-                f"{', '.join(list(OVERRIDES) + ['out'])} or a dotted key such as 'fluid.eta'", str(key))
+                f"{', '.join(list(OVERRIDES) + ['out'])} or a dotted key such as 'fluid.eta'",
+                str(key),
+            )
         if isinstance(value, Path):
             value = str(value)
         if path == ("grid", "n"):
             grid = data.get("grid")
             if isinstance(grid, dict):
                 nx, ny = grid.get("nx"), grid.get("ny")
-                if isinstance(nx, int) and isinstance(ny, int) and "n" not in grid and nx > 0 \
-                        and isinstance(value, int) and not isinstance(value, bool):
+                if (
+                    isinstance(nx, int)
+                    and isinstance(ny, int)
+                    and "n" not in grid
+                    and nx > 0
+                    and isinstance(value, int)
+                    and not isinstance(value, bool)
+                ):
                     grid["nx"] = value
                     grid["ny"] = max(8, int(round(ny * value / nx)))
                     continue
@@ -1036,8 +1165,12 @@ def _context(e: _PathError) -> CaseFileError:
     return CaseFileError(f"{key}: {e.msg}" if key else e.msg, key)
 
 
-def case_from_dict(data: Any, base_dir: str | os.PathLike | None = ".",
-                   overrides: Mapping | None = None, source: str | os.PathLike | None = None) -> RunPlan:
+def case_from_dict(
+    data: Any,
+    base_dir: str | os.PathLike | None = ".",
+    overrides: Mapping | None = None,
+    source: str | os.PathLike | None = None,
+) -> RunPlan:
     """Validate a parsed case file (a dict as ``tomllib`` returns) into a :class:`RunPlan`.
 
     ``base_dir`` is where relative paths (mask files, ``output.out``) are resolved.
@@ -1079,8 +1212,13 @@ def case_from_dict(data: Any, base_dir: str | os.PathLike | None = ".",
     out = out_override
     if out is None and o.out is not None:
         out = Path(o.out) if base_dir is None else Path(base_dir, o.out)
-    return RunPlan(case=case, out=out, movie=o.movie, pictures=o.pictures,
-                   source=Path(source) if source is not None else None)
+    return RunPlan(
+        case=case,
+        out=out,
+        movie=o.movie,
+        pictures=o.pictures,
+        source=Path(source) if source is not None else None,
+    )
 
 
 def _assemble(spec) -> Case:
@@ -1103,33 +1241,49 @@ def _assemble(spec) -> Case:
     solids = []
     for k, s in enumerate(spec.solids):
         try:
-            solids.append(Solid(shape=s.shape, law=s.law, strain=s.strain, strain_center=s.strain_center,
-                                velocity=s.velocity, anchor=s.anchor, name=s.name))
+            solids.append(
+                Solid(
+                    shape=s.shape,
+                    law=s.law,
+                    strain=s.strain,
+                    strain_center=s.strain_center,
+                    velocity=s.velocity,
+                    anchor=s.anchor,
+                    name=s.name,
+                )
+            )
         except ValueError as e:
             raise _PathError(("solids", k), str(e)) from None
     t = spec.time or TimeSpec()
     o = spec.output or OutputSpec()
-    kw = dict(name=spec.name if spec.name is not None else "case", grid=grid, solids=tuple(solids),
-              boundary=boundary, fluid=fluid, numerics=numerics,
-              gravity=tuple(spec.gravity), t_end=t.t_end, frames=t.frames,
-              picture_field=o.picture_field, description=spec.description)
+    kw = dict(
+        name=spec.name if spec.name is not None else "case",
+        grid=grid,
+        solids=tuple(solids),
+        boundary=boundary,
+        fluid=fluid,
+        numerics=numerics,
+        gravity=tuple(spec.gravity),
+        t_end=t.t_end,
+        frames=t.frames,
+        picture_field=o.picture_field,
+        description=spec.description,
+    )
     contact = getattr(spec, "contact", None)
     if contact is None:
         return Case(**kw)
     try:
-        contact_obj = _Contact(**contact.model_dump())
+        contact_obj = Contact(**contact.model_dump())
     except ValueError as e:
         raise _PathError(("contact",), str(e)) from None
-    if "contact" in {f.name for f in dataclasses.fields(Case)}:
-        return Case(**kw, contact=contact_obj)
-    from refmap.scenarios_fssi import ContactCase
-
-    return ContactCase(**kw, contact=contact_obj)
+    return Case(**kw, contact=contact_obj)
 
 
 def _span(X, Y, mask) -> str:
-    return (f"x in [{X[mask].min():.3g}, {X[mask].max():.3g}], "
-            f"y in [{Y[mask].min():.3g}, {Y[mask].max():.3g}]")
+    return (
+        f"x in [{X[mask].min():.3g}, {X[mask].max():.3g}], "
+        f"y in [{Y[mask].min():.3g}, {Y[mask].max():.3g}]"
+    )
 
 
 def _current_bbox(solid: Solid):
@@ -1174,38 +1328,56 @@ def _check_geometry(case: Case) -> None:
         if not inside.any():
             bb = _current_bbox(s)
             if bb is None or bb[1] < g.ax or bb[0] > g.bx or bb[3] < g.ay or bb[2] > g.by:
-                spans = "" if bb is None else f"; the shape spans x in [{bb[0]:.3g}, {bb[1]:.3g}], " \
-                                              f"y in [{bb[2]:.3g}, {bb[3]:.3g}]"
+                spans = (
+                    ""
+                    if bb is None
+                    else f"; the shape spans x in [{bb[0]:.3g}, {bb[1]:.3g}], "
+                    f"y in [{bb[2]:.3g}, {bb[3]:.3g}]"
+                )
                 raise _PathError(where, f"outside the domain {dom}{spans}")
-            raise _PathError(where, f"covers no grid node: too small for the grid (nx = {g.nx}, "
-                                    f"h = {g.h:.3g})")
+            raise _PathError(
+                where, f"covers no grid node: too small for the grid (nx = {g.nx}, h = {g.h:.3g})"
+            )
         if (inside & edge).any():
-            raise _PathError(where, f"outside the domain {dom} or within two cells of a non-periodic "
-                                    f"edge: the solid spans {_span(X, Y, inside)}")
+            raise _PathError(
+                where,
+                f"outside the domain {dom} or within two cells of a non-periodic "
+                f"edge: the solid spans {_span(X, Y, inside)}",
+            )
         if inside.sum() < 4:
-            raise _PathError(where, f"only {int(inside.sum())} grid nodes inside; refine the grid "
-                                    f"(nx = {g.nx}) or enlarge the shape")
+            raise _PathError(
+                where,
+                f"only {int(inside.sum())} grid nodes inside; refine the grid "
+                f"(nx = {g.nx}) or enlarge the shape",
+            )
         a = s.anchor
         if isinstance(a, PivotAnchor):
             with np.errstate(all="ignore"):
                 r2 = (X - a.center[0]) ** 2 + (Y - a.center[1]) ** 2
-            if not np.any(r2 < a.fit_radius ** 2):
-                raise _PathError(("solids", k, "anchor", "fit_radius"),
-                                 f"holds no grid node; enlarge it or refine the grid (h = {g.h:.3g}) "
-                                 f"(got {a.fit_radius!r})")
+            if not np.any(r2 < a.fit_radius**2):
+                raise _PathError(
+                    ("solids", k, "anchor", "fit_radius"),
+                    f"holds no grid node; enlarge it or refine the grid (h = {g.h:.3g}) "
+                    f"(got {a.fit_radius!r})",
+                )
         elif isinstance(a, RegionAnchor):
             with np.errstate(all="ignore"):
                 held = a.mask(g)
             if not held.any():
-                raise _PathError(("solids", k, "anchor", "region"),
-                                 f"covers no grid node of the domain {dom} (h = {g.h:.3g})")
+                raise _PathError(
+                    ("solids", k, "anchor", "region"),
+                    f"covers no grid node of the domain {dom} (h = {g.h:.3g})",
+                )
         insides.append(inside)
     for j in range(len(insides)):
         for k in range(j + 1, len(insides)):
             both = insides[j] & insides[k]
             if both.any():
-                raise _PathError((), f"solids[{j}] and solids[{k}] overlap at t = 0 "
-                                     f"({int(both.sum())} grid nodes inside both: {_span(X, Y, both)})")
+                raise _PathError(
+                    (),
+                    f"solids[{j}] and solids[{k}] overlap at t = 0 "
+                    f"({int(both.sum())} grid nodes inside both: {_span(X, Y, both)})",
+                )
 
 
 def load_run(path: str | os.PathLike, overrides: Mapping | None = None) -> RunPlan:
@@ -1373,7 +1545,11 @@ def _shape_doc(shape: Shape, base_dir) -> dict:
 def _edge_doc(edge):
     if edge == "periodic":
         return "periodic"
-    if len(edge) == 1 and edge[0].kind in ("wall", "slip", "outflow") and edge[0] == Segment(edge[0].kind):
+    if (
+        len(edge) == 1
+        and edge[0].kind in ("wall", "slip", "outflow")
+        and edge[0] == Segment(edge[0].kind)
+    ):
         return edge[0].kind
     default = Segment()
     out = []
@@ -1407,21 +1583,22 @@ def _case_doc(case: Case, base_dir=None) -> dict:
     doc["numerics"] = {k: v for k, v in case.numerics.to_dict().items() if v is not None}
     doc["output"] = {"picture_field": case.picture_field}
     doc["boundary"] = {name: _edge_doc(getattr(case.boundary, name)) for name in EDGES}
-    contact = getattr(case, "contact", None)
-    if contact is not None:
-        doc["contact"] = {f.name: getattr(contact, f.name) for f in dataclasses.fields(contact)}
+    if case.contact is not None:
+        doc["contact"] = case.contact.to_dict()
     solids = []
     for k, s in enumerate(case.solids):
         try:
             law = Inline(s.law.to_dict())
         except (ValueError, TypeError) as e:
-            raise CaseFileError(f"solids[{k}].law: cannot be written to a case file: {e}",
-                                f"solids[{k}].law") from None
+            raise CaseFileError(
+                f"solids[{k}].law: cannot be written to a case file: {e}", f"solids[{k}].law"
+            ) from None
         try:
             shape = _shape_doc(s.shape, base_dir)
         except (ValueError, TypeError) as e:
-            raise CaseFileError(f"solids[{k}].shape: cannot be written to a case file: {e}",
-                                f"solids[{k}].shape") from None
+            raise CaseFileError(
+                f"solids[{k}].shape: cannot be written to a case file: {e}", f"solids[{k}].shape"
+            ) from None
         d: dict[str, Any] = {
             "name": s.name,
             "law": law,
@@ -1443,20 +1620,26 @@ def _case_doc(case: Case, base_dir=None) -> dict:
 
 
 _COMMENTS = {
-    ("grid",): "n cells along x (ny follows for square cells), or nx and ny; the domain [ax, bx] x [ay, by]",
+    (
+        "grid",
+    ): "n cells along x (ny follows for square cells), or nx and ny; the domain [ax, bx] x [ay, by]",
     ("time",): "simulated time span and number of output frames",
-    ("fluid",): "p = lambda_f (rho_f / rho0 - 1); viscous stress eta sym(grad v); extra_viscosity lap(v)",
+    (
+        "fluid",
+    ): "p = lambda_f (rho_f / rho0 - 1); viscous stress eta sym(grad v); extra_viscosity lap(v)",
     ("numerics",): "lengths in grid spacings h; cfl scales the adaptive time step",
     ("output",): "picture_field: the field drawn in the PNG snapshots (and the movie)",
     ("boundary",): 'each edge: "wall", "slip", "outflow", "periodic", or a list of segments\n'
-                   "{kind, start, end, velocity, profile, ramp, omega} tiling [0, 1] from the edge's low end",
+    "{kind, start, end, velocity, profile, ramp, omega} tiling [0, 1] from the edge's low end",
     ("contact",): "repulsive contact force between solids and against the walls (refmap.contact)",
     ("solids",): "a solid: shape in reference coordinates, material law, initial map\n"
-                 "xi = strain (x - strain_center) + strain_center, initial velocity, optional anchor",
+    "xi = strain (x - strain_center) + strain_center, initial velocity, optional anchor",
 }
 
 
-def case_to_toml(case: Case, base_dir: str | os.PathLike | None = None, header: str | None = None) -> str:
+def case_to_toml(
+    case: Case, base_dir: str | os.PathLike | None = None, header: str | None = None
+) -> str:
     """The case file of ``case``; :func:`load_case` of it gives an equal Case.
 
     ``base_dir``: the folder the file will be written to (mask files are written relative
@@ -1467,7 +1650,9 @@ def case_to_toml(case: Case, base_dir: str | os.PathLike | None = None, header: 
     doc = _case_doc(case, base_dir)
     text = to_toml(doc, _COMMENTS)
     if header:
-        text = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines()) + "\n" + text
+        text = (
+            "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines()) + "\n" + text
+        )
     return text
 
 
@@ -1494,7 +1679,12 @@ def show_scenario(name: str, n: int | None = None) -> str:
     sc = _scenarios()
     case = sc.get_case(name) if n is None else sc.get_case(name, n)
     desc = sc.DESCRIPTIONS.get(name, "")
-    header = (f"refmap case file: the built-in scenario {name!r}" + (f" -- {desc}" if desc else "")
-              + "\nrun it with:  refmap run " + f"{name}.toml" + "\n"
-              "edit any value; every key is described in docs/casefiles.md")
+    header = (
+        f"refmap case file: the built-in scenario {name!r}"
+        + (f" -- {desc}" if desc else "")
+        + "\nrun it with:  refmap run "
+        + f"{name}.toml"
+        + "\n"
+        "edit any value; every key is described in docs/casefiles.md"
+    )
     return case_to_toml(case, header=header)

@@ -100,6 +100,7 @@ from jax.scipy.special import erfc
 from refmap.operators import div_node
 
 __all__ = [
+    "PAIR_COLUMNS_MAX_SOLIDS",
     "Contact",
     "contact_stress",
     "contact_force",
@@ -107,6 +108,11 @@ __all__ = [
     "wall_distances",
     "benchmark",
 ]
+
+
+#: the diagnostics table has per-pair columns (min gap, overlap area) up to this many solids
+#: (120 pairs); the output frames always hold the full per-pair tables
+PAIR_COLUMNS_MAX_SOLIDS = 16
 
 
 @dataclass(frozen=True)
@@ -137,23 +143,41 @@ class Contact:
     walls: bool = True
 
     def __post_init__(self):
+        self.check()
+        for name in ("width", "reach", "cutoff", "strength"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        object.__setattr__(self, "walls", bool(self.walls))
+
+    def check(self) -> Contact:
+        """Raise ValueError naming the first bad parameter (and its value); else self."""
+
+        def number(v):
+            return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(
+                v, (bool, np.bool_)
+            )
+
         for name in ("width", "reach", "strength"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if not (number(v) and math.isfinite(v) and v > 0):
                 raise ValueError(f"Contact {name} must be a finite number > 0, got {v!r}")
-            object.__setattr__(self, name, float(v))
-        if not (isinstance(self.cutoff, (int, float)) and 0.0 <= self.cutoff < 1.0):
+        if not (number(self.cutoff) and 0.0 <= self.cutoff < 1.0):
             raise ValueError(f"Contact cutoff must be in [0, 1), got {self.cutoff!r}")
-        object.__setattr__(self, "cutoff", float(self.cutoff))
-        object.__setattr__(self, "walls", bool(self.walls))
+        if not isinstance(self.walls, (bool, np.bool_)):
+            raise ValueError(f"Contact walls must be True or False, got {self.walls!r}")
+        return self
 
     def __call__(self, ctx):
         """Body-force term of :class:`refmap.model.Model`: force density (2, nx, ny)."""
         return _total_force(self, ctx["model"], ctx["state"], ctx["params"], ctx["derived"])
 
     def diagnostics(self, model, state, params, derived=None):
-        """Flat scalar contact diagnostics and per-solid numbers, shaped like
-        ``Model.diagnostics`` (``solids`` is a list of per-solid dicts)."""
+        """Flat scalar contact diagnostics, shaped like ``Model.diagnostics`` (which merges
+        them into its own): scalars; ``solids``, a list of per-solid dicts (contact force
+        ``contact_fx``, ``contact_fy`` and ``wall_gap``); and, for at most
+        :data:`PAIR_COLUMNS_MAX_SOLIDS` solids, ``pairs``: ``{"i_j": {min_gap,
+        overlap_area}}`` for every pair i < j (min_gap +inf for pairs farther apart than the
+        band, i.e. not in contact).  The diagnostics table gets one column per entry; with
+        more solids the per-pair tables are only in the frames (:meth:`frame_arrays`)."""
         d = contact_diagnostics(model, state, params, self, derived=derived)
         N = model.n_solids
         out = dict(
@@ -164,6 +188,14 @@ class Contact:
             iu = np.triu_indices(N, 1)
             out["contact_min_gap"] = jnp.min(d["min_gap"][iu])
             out["contact_overlap_area"] = jnp.sum(d["overlap_area"][iu])
+            out["contact_pairs"] = jnp.sum(jnp.isfinite(d["min_gap"][iu]))
+            if N <= PAIR_COLUMNS_MAX_SOLIDS:
+                out["pairs"] = {
+                    f"{i}_{j}": dict(
+                        min_gap=d["min_gap"][i, j], overlap_area=d["overlap_area"][i, j]
+                    )
+                    for i, j in zip(*iu, strict=True)
+                }
         if N >= 1:
             out["contact_min_wall_gap"] = jnp.min(d["wall_gap"])
             out["solids"] = [
@@ -175,6 +207,32 @@ class Contact:
                 for k in range(N)
             ]
         return out
+
+    def frame_arrays(self, model, state, params, derived=None):
+        """The contact numbers of one state as arrays for the output frames:
+        ``contact_force`` (N, 2), ``contact_wall_gap`` (N,), ``contact_min_gap`` and
+        ``contact_overlap_area`` (N, N; NaN on the diagonal, min_gap +inf for pairs not in
+        contact)."""
+        if model.n_solids == 0:
+            return {}
+        d = contact_diagnostics(model, state, params, self, derived=derived)
+        return {
+            "contact_force": d["force"],
+            "contact_wall_gap": d["wall_gap"],
+            "contact_min_gap": d["min_gap"],
+            "contact_overlap_area": d["overlap_area"],
+        }
+
+    def frame_array_dims(self, model):
+        """Axis names of :meth:`frame_arrays`."""
+        if model.n_solids == 0:
+            return {}
+        return {
+            "contact_force": ("solid", "xy"),
+            "contact_wall_gap": ("solid",),
+            "contact_min_gap": ("solid", "other_solid"),
+            "contact_overlap_area": ("solid", "other_solid"),
+        }
 
     def to_dict(self):
         return {

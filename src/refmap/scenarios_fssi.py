@@ -16,18 +16,13 @@ G = kappa = 10 (density 1 unless stated), fluid rho_f0 = 1, lambda_f = 1, eta = 
 viscosity 0.02 (``settle`` excepted: lambda_f = 5); every scenario uses the default
 :class:`Contact` (walls included).
 
-A :class:`refmap.case.Case` has no field for body forces yet, so the scenarios return a
-:class:`ContactCase`: a Case with one more field, ``contact``, whose ``build()`` passes it
-to ``Model(body_forces=...)``.  Everything that takes a Case (``Simulation``, the CLI once
-the scenarios are registered) therefore runs them with contact.  If ``Case`` itself gains
-the ``contact`` field (the change proposed in ``docs/fssi.md``), ``ContactCase`` is simply
-``Case``.
+Each returns a plain :class:`refmap.case.Case` whose ``contact`` field holds the default
+:class:`Contact`; ``case.replace(contact=None)`` runs the same case without contact.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
 
 from refmap.anchors import RegionAnchor
 from refmap.boundary import Boundary, Segment
@@ -40,47 +35,7 @@ from refmap.model import Solid
 from refmap.scenarios import DESCRIPTIONS, scenario
 from refmap.state import FluidParams, Numerics
 
-__all__ = ["ContactCase", "build", "two_balls", "ball_stick", "settle"]
-
-if "contact" in {f.name for f in fields(Case)}:  # Case already carries a contact term
-    ContactCase = Case
-else:
-
-    @dataclass(frozen=True)
-    class ContactCase(Case):
-        """A :class:`Case` with a contact body force (``None``: no contact)."""
-
-        contact: Contact | None = None
-
-        def to_dict(self):
-            d = super().to_dict()
-            d["contact"] = None if self.contact is None else self.contact.to_dict()
-            return d
-
-        def build(self):
-            """Validated (model, params) pair, the model carrying the contact force."""
-            return build(self, self.contact)
-
-
-def build(case: Case, contact: Contact | None = None):
-    """(model, params) of ``case`` with ``contact`` (if not None) as a body force.
-
-    Works on any Case, with or without a ``contact`` field; ``contact`` overrides it.
-    """
-    from refmap.model import Model
-    from refmap.state import Params
-
-    case.validate()
-    if contact is None:
-        contact = getattr(case, "contact", None)
-    forces = (contact,) if contact is not None else ()
-    model = Model(case.grid, case.solids, case.boundary, case.numerics, body_forces=forces)
-    params = Params(
-        fluid=case.fluid,
-        laws=tuple(s.law for s in case.solids),
-        gravity=tuple(float(x) for x in case.gravity),
-    )
-    return model, params
+__all__ = ["two_balls", "ball_stick", "settle", "SETTLE_BALLS"]
 
 
 def _law(rho0: float = 1.0):
@@ -108,7 +63,7 @@ def two_balls(n: int = 128) -> Case:
     )
     mobile = Solid(shape=Disc(center=(-0.75, 0.0), radius=0.5), law=_law(), name="mobile ball")
     flow = Segment("velocity", velocity=(0.3, 0.0), ramp=1.0)
-    return ContactCase(
+    return Case(
         name="two_balls",
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
         solids=(fixed, mobile),
@@ -144,7 +99,7 @@ def ball_stick(n: int = 128) -> Case:
     ball = Solid(
         shape=Disc(center=(-0.3, 0.5), radius=0.4), law=_law(2.0), velocity=(1.2, 0.0), name="ball"
     )
-    return ContactCase(
+    return Case(
         name="ball_stick",
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
         solids=(stick, ball),
@@ -193,7 +148,7 @@ def settle(n: int = 128) -> Case:
         Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"ball{k} (r={r:g}, rho={rho:g})")
         for k, (c, r, rho) in enumerate(SETTLE_BALLS)
     )
-    return ContactCase(
+    return Case(
         name="settle",
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
         solids=solids,
