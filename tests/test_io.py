@@ -203,6 +203,54 @@ def test_diagnostics_roundtrip(run, tmp_path):
     assert df["a"].tolist() == [0.1, 0.2] and np.isnan(df["b"].iloc[1])
 
 
+def test_frame_diagnostics_arrays_roundtrip(tmp_path):
+    """Small per-solid / per-pair arrays stored with a frame come back exactly, from
+    read_frame and from open_run (NaN in frames that lack them, the solid axis shared
+    with the per-solid fields, inf and NaN kept), and bad ones are refused by name."""
+    gap = np.array([[np.nan, 0.25], [0.25, np.nan]])
+    force = np.array([[1.5, -2.0], [-1.5, 2.0]])
+    run_dir = tmp_path / "r"
+    with RunWriter(run_dir, GRID, {}) as w:
+        for k, t in enumerate(TIMES):
+            small = {
+                "contact_force": (("solid", "xy"), force * (k + 1)),
+                "contact_min_gap": (("solid", "other_solid"), gap + k),
+                "count": np.array([k, 2 * k]),  # no dims given: count_dim0
+            }
+            if k == 1:
+                small = {"contact_force": (("solid", "xy"), np.full((2, 2), np.inf))}
+            w.write_frame(k, t, synthetic_fields(k), diagnostics=small)
+        w.write_frame(3, 0.5, synthetic_fields(3))  # none at all
+        for bad, match in (
+            ({"u": [1.0]}, "also a field name"),
+            ({"a": (("solid",), np.zeros((2, 2)))}, "must name each of its 2 axes"),
+            ({"a": (("x",), np.zeros(12))}, "reserved"),
+            ({"a/b": [1.0]}, "invalid diagnostics name"),
+        ):
+            with pytest.raises(ValueError, match=match):
+                w.write_frame(9, 1.0, synthetic_fields(0), diagnostics=bad)
+    _, _, attrs = read_frame(run_dir / "frames" / "frame_00002.h5")
+    np.testing.assert_array_equal(attrs["diagnostics"]["contact_force"], 3 * force)
+    np.testing.assert_array_equal(attrs["diagnostics"]["contact_min_gap"], gap + 2)
+    assert attrs["diagnostic_dims"]["contact_min_gap"] == ("solid", "other_solid")
+    assert attrs["diagnostic_dims"]["count"] == ("count_dim0",)
+    ds = open_run(run_dir)
+    assert ds["contact_force"].dims == ("time", "solid", "xy")
+    assert ds["contact_min_gap"].dims == ("time", "solid", "other_solid")
+    assert ds.sizes["solid"] == NSOLID and list(ds["xy"].values) == ["x", "y"]
+    np.testing.assert_array_equal(ds["contact_force"].values[0], force)
+    assert np.all(np.isinf(ds["contact_force"].values[1]))
+    assert np.all(np.isnan(ds["contact_min_gap"].values[1]))  # absent from frame 1
+    np.testing.assert_array_equal(ds["contact_min_gap"].values[2], gap + 2)
+    np.testing.assert_array_equal(ds["count"].values[:, 1], [0.0, np.nan, 4.0, np.nan])
+    assert ds["contact_force"].attrs["diagnostic"]
+    only = open_run(run_dir, fields=["u", "contact_force"])
+    assert set(only.data_vars) == {"u", "contact_force"}
+    assert np.all(np.isnan(ds["contact_force"].values[3]))
+    _, _, attrs = read_frame(run_dir / "frames" / "frame_00003.h5")
+    assert attrs["diagnostics"] == {} and attrs["diagnostic_dims"] == {}
+
+
 # ---------------------------------------------------------------------- XDMF
 def _dims(item) -> tuple[int, ...]:
     return tuple(int(s) for s in item.get("Dimensions").split())
@@ -339,6 +387,28 @@ def test_pngs(run, tmp_path):
     assert p3.stat().st_size > 1000 and _is_png(p3)
     with pytest.raises(ValueError):
         save_frame_png(tmp_path / "x.png", GRID, 0.0, "bad", np.zeros((3, 3)), "node")
+
+
+def test_every_solid_interface_is_drawn():
+    """plot_field (and so the run pictures, panels and movies) draws the zero contour of
+    every solid's level set: three discs give three contour sets at level 0, each centred
+    on its disc."""
+    from matplotlib.contour import ContourSet
+    from matplotlib.figure import Figure
+
+    from refmap.io import plot_field
+
+    X, Y = GRID.mesh("node")
+    centres = [(-0.2, 0.5), (1.0, 0.4), (0.5, 1.0)]
+    phis = np.stack([np.hypot(X - cx, Y - cy) - 0.3 for cx, cy in centres])
+    ax = Figure().add_subplot()
+    plot_field(ax, GRID, X * Y, "node", phis)
+    sets = [c for c in ax.collections if isinstance(c, ContourSet)]
+    assert len(sets) == 3 and all(list(c.levels) == [0.0] for c in sets)
+    for c, centre in zip(sets, centres, strict=True):
+        v = np.concatenate([p.vertices for p in c.get_paths()])
+        # the polygon's vertex mean lies within a cell of the disc's centre
+        assert np.hypot(*(v.mean(axis=0) - centre)) < GRID.dx
 
 
 def _ffmpeg_available() -> bool:

@@ -514,6 +514,57 @@ class Model:
             out["J_min"] = jnp.min(jnp.stack([p["J_min"] for p in per]))
             out["J_max"] = jnp.max(jnp.stack([p["J_max"] for p in per]))
             out["solids"] = per
+        # body-force terms with diagnostics of their own (refmap.contact.Contact): their
+        # scalars, their per-solid numbers (merged into "solids") and per-pair numbers
+        for term in self.body_forces:
+            more = getattr(term, "diagnostics", None)
+            if more is None:
+                continue
+            more = dict(more(self, state, params, d))
+            for p, extra in zip(out.get("solids", []), more.pop("solids", []), strict=False):
+                p.update(extra)
+            if "pairs" in more:
+                out.setdefault("pairs", {}).update(more.pop("pairs"))
+            out.update(more)
+        return out
+
+    def frame_arrays(self, state: State, params: Params):
+        """Per-solid and per-pair numbers stored in each output frame (jit-able): a dict of
+        arrays whose axes :meth:`frame_array_dims` names.  Per solid its centroid and mean
+        velocity (N, 2), area, min and max J (N,); plus the arrays of body-force terms that
+        have them (:meth:`refmap.contact.Contact.frame_arrays`: contact forces, gaps and
+        overlap areas)."""
+        out = {}
+        if not self.n_solids:
+            return out
+        diag = self.diagnostics(state, params)
+        per = diag["solids"]
+
+        def col(key):
+            return jnp.stack([p[key] for p in per])
+
+        out["solid_centroid"] = jnp.stack([col("centroid_x"), col("centroid_y")], axis=-1)
+        out["solid_velocity"] = jnp.stack([col("velocity_x"), col("velocity_y")], axis=-1)
+        for key in ("area", "J_min", "J_max"):
+            out[f"solid_{key}"] = col(key)
+        d = self.derived(state, params)
+        for term in self.body_forces:
+            more = getattr(term, "frame_arrays", None)
+            if more is not None:
+                out.update(more(self, state, params, d))
+        return out
+
+    def frame_array_dims(self) -> dict[str, tuple[str, ...]]:
+        """Names of the axes of each :meth:`frame_arrays` entry (``solid``: the solids,
+        ``other_solid``: the second solid of a pair, ``xy``: the x and y components)."""
+        if not self.n_solids:
+            return {}
+        out = {"solid_centroid": ("solid", "xy"), "solid_velocity": ("solid", "xy")}
+        out.update({f"solid_{k}": ("solid",) for k in ("area", "J_min", "J_max")})
+        for term in self.body_forces:
+            dims = getattr(term, "frame_array_dims", None)
+            if dims is not None:
+                out.update(dims(self))
         return out
 
     def output_fields(self, state: State, params: Params):

@@ -66,6 +66,10 @@ def _flatten_diag(t, info, diag, wall):
             for i, per in enumerate(v):
                 for kk, vv in per.items():
                     row[f"solid{i}_{kk}"] = float(vv)
+        elif k == "pairs":  # {"i_j": {...}}, in the order (0, 1), (0, 2), ..., (1, 2), ...
+            for key in sorted(v, key=lambda s: tuple(int(p) for p in s.split("_"))):
+                for kk, vv in v[key].items():
+                    row[f"pair{key}_{kk}"] = float(vv)
         else:
             row[k] = float(v)
     return row
@@ -102,18 +106,30 @@ class Simulation:
         self.overwrite = overwrite
         self.command = command if command is not None else " ".join(sys.argv)
         self._advance = jax.jit(self.model.advance, static_argnames=("max_steps",))
-        self._diag = jax.jit(self.model.diagnostics)
-        self._fields = jax.jit(self.model.output_fields)
+        model = self.model
+
+        def outputs(state, params):  # one compilation for everything a frame writes
+            return (
+                model.output_fields(state, params),
+                model.diagnostics(state, params),
+                model.frame_arrays(state, params),
+            )
+
+        self._outputs = jax.jit(outputs)
+        self._array_dims = model.frame_array_dims()
         self.state = None
         self.rows: list[dict] = []
 
     def _write(self, writer, index, state, info, wall):
-        fields = {k: np.asarray(v) for k, v in self._fields(state, self.params).items()}
-        diag = jax.device_get(self._diag(state, self.params))
+        fields, diag, arrays = jax.device_get(self._outputs(state, self.params))
         row = _flatten_diag(state.t, info, diag, wall)
         self.rows.append(row)
         if writer is not None:
-            writer.write_frame(index, float(state.t), fields, attrs={"step": int(state.step)})
+            fields = {k: np.asarray(v) for k, v in fields.items()}
+            small = {k: (self._array_dims[k], np.asarray(a)) for k, a in arrays.items()}
+            writer.write_frame(
+                index, float(state.t), fields, attrs={"step": int(state.step)}, diagnostics=small
+            )
             writer.append_diagnostics(row)
         return row
 

@@ -23,7 +23,11 @@ DIAGNOSTICS_FILE = "diagnostics.csv"
 TMP_SUFFIX = ".tmp"
 
 GRID_KEYS = ("nx", "ny", "ax", "bx", "ay", "by", "dx", "dy")
-RESERVED_FRAME_ATTRS = frozenset(("time", "index", "format", "layout", *GRID_KEYS))
+RESERVED_FRAME_ATTRS = frozenset(
+    ("time", "index", "format", "layout", "locations", "diagnostics", "diagnostic_dims", *GRID_KEYS)
+)
+#: HDF5 group of a frame's small per-solid / per-pair arrays
+DIAGNOSTICS_GROUP = "diagnostics"
 
 FRAME_RE = re.compile(r"^frame_(\d+)\.h5$")
 

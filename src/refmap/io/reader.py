@@ -26,6 +26,7 @@ import xarray as xr
 from refmap.grid import Grid
 from refmap.io._common import (
     DIAGNOSTICS_FILE,
+    DIAGNOSTICS_GROUP,
     FRAME_RE,
     FRAMES_DIR,
     METADATA_FILE,
@@ -55,7 +56,9 @@ def read_frame(path: str | os.PathLike) -> tuple[float, dict[str, np.ndarray], d
     Returns ``(time, fields, attrs)``: ``fields`` maps each field name to a float64 array
     indexed ``[i, j]`` (per-solid fields ``[s, i, j]``); ``attrs`` holds the file attributes
     (time, index, the grid keys nx, ny, ax, bx, ay, by, dx, dy, and whatever extra attrs the
-    writer was given) plus ``"locations"``: ``{name: "node" | "corner"}``.  Raises OSError
+    writer was given) plus ``"locations"``: ``{name: "node" | "corner"}``, and
+    ``"diagnostics"``: ``{name: array}`` with ``"diagnostic_dims"``: ``{name: axis names}``
+    for the frame's small diagnostic arrays (both empty if it has none).  Raises OSError
     (or KeyError/ValueError) for a file that is not a complete frame.
     """
     with h5py.File(path, "r") as f:
@@ -68,7 +71,16 @@ def read_frame(path: str | os.PathLike) -> tuple[float, dict[str, np.ndarray], d
             arr = np.asarray(ds[()], dtype=np.float64)
             fields[name] = np.ascontiguousarray(np.swapaxes(arr, -1, -2))
             locations[name] = _py(ds.attrs["location"])
+        small: dict[str, np.ndarray] = {}
+        small_dims: dict[str, tuple[str, ...]] = {}
+        if DIAGNOSTICS_GROUP in f:
+            for name, ds in f[DIAGNOSTICS_GROUP].items():
+                small[name] = np.asarray(ds[()], dtype=np.float64)
+                dims = _py(ds.attrs.get("dims", ""))
+                small_dims[name] = tuple(dims.split()) if dims else ()
     attrs["locations"] = locations
+    attrs["diagnostics"] = small
+    attrs["diagnostic_dims"] = small_dims
     return float(attrs["time"]), fields, attrs
 
 
@@ -114,8 +126,14 @@ def open_run(
     (the corners); ``solid`` for per-solid fields.  Node fields have dims ``(time, x, y)``
     or ``(time, solid, x, y)``, corner fields ``(time, xc, yc)`` or
     ``(time, solid, xc, yc)``; each variable has attrs ``location`` and ``per_solid``.
-    Coordinates: ``time``, ``index`` (frame index, along time), ``x``, ``y``, ``xc``,
-    ``yc``, ``solid``.  ``ds.attrs`` holds metadata.json (values that are not str/int/
+    The frames' small diagnostic arrays (see :meth:`refmap.io.RunWriter.write_frame`;
+    written by :class:`refmap.simulation.Simulation`: ``solid_centroid``,
+    ``solid_velocity``, ``solid_area``, ``solid_J_min``, ``solid_J_max`` and, with contact,
+    ``contact_force``, ``contact_wall_gap``, ``contact_min_gap``,
+    ``contact_overlap_area``) are variables with dims ``(time, *their dims)`` and attr
+    ``diagnostic``.  Coordinates: ``time``, ``index`` (frame index, along time), ``x``,
+    ``y``, ``xc``, ``yc``, ``solid``, and ``other_solid`` and ``xy`` (``"x"``, ``"y"``)
+    where diagnostics use them.  ``ds.attrs`` holds metadata.json (values that are not str/int/
     float/bool are stored as JSON strings) and the grid keys nx, ny, ax, bx, ay, by, dx, dy
     (which take precedence over metadata keys of the same name; those are kept as
     ``metadata.<key>``).  Use :func:`refmap.io.grid_from_attrs` to rebuild the Grid.
@@ -141,7 +159,7 @@ def open_run(
         )
 
     wanted = None if fields is None else set(fields)
-    loaded: list[tuple[int, float, dict[str, np.ndarray], dict[str, str]]] = []
+    loaded: list[tuple] = []  # (index, time, fields, locations, diagnostics, their dims)
     grid: Grid | None = None
     for index, path in list_frames(run_dir):
         try:
@@ -160,21 +178,23 @@ def open_run(
             )
             continue
         locs = attrs["locations"]
+        small, small_dims = attrs["diagnostics"], attrs["diagnostic_dims"]
         if wanted is not None:
             data = {k: v for k, v in data.items() if k in wanted}
-        loaded.append((int(attrs.get("index", index)), time, data, locs))
+            small = {k: v for k, v in small.items() if k in wanted}
+        loaded.append((int(attrs.get("index", index)), time, data, locs, small, small_dims))
     if grid is None:
         raise FileNotFoundError(f"no readable frame in {frames_dir}")
     loaded.sort(key=lambda t: t[0])
     if wanted is not None:
-        present = set().union(*(d.keys() for _, _, d, _ in loaded))
+        present = set().union(*(set(e[2]) | set(e[4]) for e in loaded))
         missing = sorted(wanted - present)
         if missing:
             raise KeyError(f"fields {missing} are in no frame of {run_dir}")
 
     # union of the fields, in order of first appearance
     order: dict[str, tuple[str, int]] = {}  # name -> (location, nsolid or 0)
-    for _, _, data, locs in loaded:
+    for _, _, data, locs, _, _ in loaded:
         for name, arr in data.items():
             nsolid = arr.shape[0] if arr.ndim == 3 else 0
             loc = locs[name]
@@ -198,7 +218,7 @@ def open_run(
         else:
             dims = ("time", *sdims)
             buf = np.full((nt, *shape2), np.nan)
-        for t, (_, _, data, _) in enumerate(loaded):
+        for t, (_, _, data, *_) in enumerate(loaded):
             arr = data.get(name)
             if arr is None:
                 continue
@@ -208,18 +228,48 @@ def open_run(
                 buf[t] = arr
         data_vars[name] = xr.Variable(dims, buf, attrs={"location": loc, "per_solid": bool(nsolid)})
 
+    # the frames' small diagnostic arrays (per solid, per pair): dims ("time", *dims),
+    # NaN where a frame lacks one (or has a smaller one)
+    small_order: dict[str, tuple[str, ...]] = {}
+    small_shape: dict[str, tuple[int, ...]] = {}
+    for *_, small, small_dims in loaded:
+        for name, arr in small.items():
+            dims = small_dims.get(name) or tuple(f"{name}_dim{k}" for k in range(arr.ndim))
+            if name in order:
+                raise ValueError(f"{name!r} is both a field and a diagnostics array")
+            if name in small_order and small_order[name] != dims:
+                raise ValueError(f"diagnostics {name!r} changes its dims between frames")
+            small_order[name] = dims
+            old = small_shape.get(name, arr.shape)
+            small_shape[name] = tuple(max(a, b) for a, b in zip(old, arr.shape, strict=True))
+    for name, dims in small_order.items():
+        buf = np.full((nt, *small_shape[name]), np.nan)
+        for t, (*_, small, _) in enumerate(loaded):
+            arr = small.get(name)
+            if arr is not None:
+                buf[(t, *(slice(0, k) for k in arr.shape))] = arr
+        data_vars[name] = xr.Variable(("time", *dims), buf, attrs={"diagnostic": True})
+
     x, y = grid.axes("node")
     xc, yc = grid.axes("corner")
     coords = {
-        "time": ("time", np.array([t for _, t, _, _ in loaded], dtype=np.float64)),
-        "index": ("time", np.array([i for i, _, _, _ in loaded], dtype=np.int64)),
+        "time": ("time", np.array([e[1] for e in loaded], dtype=np.float64)),
+        "index": ("time", np.array([e[0] for e in loaded], dtype=np.int64)),
         "x": ("x", x, {"long_name": "x of cell centres (nodes)"}),
         "y": ("y", y, {"long_name": "y of cell centres (nodes)"}),
         "xc": ("xc", xc, {"long_name": "x of cell corners"}),
         "yc": ("yc", yc, {"long_name": "y of cell corners"}),
     }
-    if nsolid_all:
-        coords["solid"] = ("solid", np.arange(nsolid_all))
+    sizes = {}
+    for name, dims in small_order.items():
+        sizes.update(zip(dims, small_shape[name], strict=True))
+    n_solid = max(nsolid_all, sizes.get("solid", 0))
+    if n_solid:
+        coords["solid"] = ("solid", np.arange(n_solid))
+    if "other_solid" in sizes:
+        coords["other_solid"] = ("other_solid", np.arange(sizes["other_solid"]))
+    if "xy" in sizes:
+        coords["xy"] = ("xy", np.array(["x", "y"][: sizes["xy"]]))
 
     attrs = _flat_attrs(read_metadata(run_dir))
     for k, v in grid_attrs(grid).items():

@@ -18,6 +18,9 @@ Frame file layout (HDF5)::
     /x, /y       node (cell-centre) axes, lengths nx and ny
     /xc, /yc     corner axes, lengths nx+1 and ny+1
     /fields/<name>  float64, attrs location ("node"|"corner"), per_solid (bool), dims
+    /diagnostics/<name>  optional small float64 arrays (per-solid, per-pair numbers), attr
+                     dims (axis names, space-separated, e.g. "solid other_solid"), stored
+                     as given (not transposed)
     /xdmf/zero_<loc>  zeros used only as the third velocity component in run.xdmf
 
 Axis order on disk.  The solver's arrays are indexed ``[i, j]`` (i along x).  XDMF and
@@ -58,6 +61,7 @@ import numpy as np
 from refmap.grid import Grid
 from refmap.io._common import (
     DIAGNOSTICS_FILE,
+    DIAGNOSTICS_GROUP,
     FORMAT,
     FRAME_RE,
     FRAMES_DIR,
@@ -134,6 +138,33 @@ def _csv_value(value: Any) -> Any:
             return arr.item()
         return to_json(arr)
     return value
+
+
+def _prepare_diagnostics(diagnostics: dict, fields: dict) -> dict:
+    """``{name: (dims, float64 array)}`` from a frame's ``diagnostics`` argument, checked."""
+    out = {}
+    for name, value in diagnostics.items():
+        if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
+            raise ValueError(f"invalid diagnostics name {name!r}")
+        if name in fields:
+            raise ValueError(f"diagnostics name {name!r} is also a field name")
+        dims = None
+        if isinstance(value, tuple) and len(value) == 2 and isinstance(value[0], (tuple, list)):
+            dims, value = value
+        arr = np.asarray(value, dtype=np.float64)
+        if dims is None:
+            dims = tuple(f"{name}_dim{k}" for k in range(arr.ndim))
+        dims = tuple(str(d) for d in dims)
+        if len(dims) != arr.ndim or not all(d and d.isidentifier() for d in dims):
+            raise ValueError(
+                f"diagnostics {name!r}: dims {dims!r} must name each of its {arr.ndim} axes "
+                "(identifiers)"
+            )
+        taken = sorted({"time", "x", "y", "xc", "yc"}.intersection(dims))
+        if taken:
+            raise ValueError(f"diagnostics {name!r}: dims {taken} are reserved for the grid/time")
+        out[name] = (dims, arr)
+    return out
 
 
 class RunWriter:
@@ -235,6 +266,7 @@ class RunWriter:
         time: float,
         fields: dict[str, Any],
         attrs: dict | None = None,
+        diagnostics: dict[str, Any] | None = None,
     ) -> Path:
         """Save one snapshot as ``frames/frame_{index:05d}.h5`` and refresh run.xdmf.
 
@@ -244,8 +276,17 @@ class RunWriter:
         ``v``) first.  Values are stored as float64.  Any other shape raises ValueError naming
         the field.  ``attrs`` are extra scalar/array/string attributes for the file (other
         values are stored as JSON strings); they may not reuse the reserved names time,
-        index, format, layout or the grid keys.  Writing an index again replaces that frame.
-        Returns the path of the frame file.
+        index, format, layout, locations, diagnostics, diagnostic_dims or the grid keys.
+
+        ``diagnostics`` maps names to small arrays of numbers that belong to the frame but
+        live on no grid (per-solid centroids, contact forces, per-pair gaps...): each value
+        is an array, or a pair ``(dims, array)`` naming its axes (``("solid", "xy")``;
+        default ``NAME_dim0``, ...).  They are stored in ``/diagnostics`` as float64 and
+        come back from :func:`refmap.io.read_frame` (``attrs["diagnostics"]``) and
+        :func:`refmap.io.open_run` (variables with dims ``("time", *dims)``).  A name may
+        not also be a field name.
+
+        Writing an index again replaces that frame.  Returns the path of the frame file.
         """
         self._check_open()
         index = operator.index(index)
@@ -267,6 +308,7 @@ class RunWriter:
             prepared.append((_FieldRecord(name, location, arr.shape[0] if per_solid else 0), disk))
 
         by_name = {rec.name: rec for rec, _ in prepared}
+        small = _prepare_diagnostics(diagnostics or {}, by_name)
         zero_loc = None
         u, v = by_name.get("u"), by_name.get("v")
         if u and v and u.nsolid == 0 and v.nsolid == 0 and u.location == v.location:
@@ -295,6 +337,11 @@ class RunWriter:
                     ds.attrs["location"] = rec.location
                     ds.attrs["per_solid"] = bool(rec.nsolid)
                     ds.attrs["dims"] = _disk_dims(rec.location, bool(rec.nsolid))
+                if small:
+                    dg = f.create_group(DIAGNOSTICS_GROUP)
+                    for name, (dims, arr) in small.items():
+                        ds = dg.create_dataset(name, data=arr)
+                        ds.attrs["dims"] = " ".join(dims)
                 if zero_loc is not None:
                     shape = self.grid.shape(zero_loc)[::-1]
                     f.create_group("xdmf").create_dataset(
