@@ -208,8 +208,10 @@ def test_bad_case_values_are_named():
     with pytest.raises(CaseError, match="far"):
         case.replace(solids=(far,)).validate()
     edge = Solid(shape=Rectangle(center=(0, 0), half_size=(2.5, 0.5)), law=NeoHookean(G=1.0, kappa=1.0), name="wide")
-    with pytest.raises(CaseError, match="domain edge"):
-        case.replace(solids=(edge,)).validate()
+    case.replace(solids=(edge,)).validate()  # touching walls is allowed (glued there)
+    outflow = Boundary(right="outflow")
+    with pytest.raises(CaseError, match="right edge where it is a 'outflow' segment"):
+        case.replace(solids=(edge,), boundary=outflow).validate()
     with pytest.raises(CaseError, match="unknown scenario"):
         get_case("nope")
     with pytest.raises(CaseError, match="grid size"):

@@ -140,6 +140,10 @@ class Model:
         self._xi0 = np.stack(
             [np.stack(s.initial_map(X, Y)) for s in self.solids]
         ) if self.solids else np.zeros((0, 2) + grid.shape())
+        if self.solids:  # solids touching a resting wall at t = 0 stay glued to it
+            with jax.ensure_compile_time_eval():
+                inside0 = [np.asarray(self.phi0(k, self._xi0[k])) < 0 for k in range(self.n_solids)]
+            self.bc.glue(self._xi0 - np.stack([X, Y]), np.stack(inside0))
 
     # ------------------------------------------------------------------ helpers
     @property
