@@ -3,8 +3,10 @@
 For N discs on a lattice in a closed box, prints the cost per step of the whole step with
 contact, of the same step without contact, and of the contact force alone, plus the
 compile time.  The contact force does O(N) work per grid corner (the two nearest solids by
-``lax.top_k``), so its cost should grow linearly in N; the whole step is O(N) too (every
-solid has its own reference map, level set and extrapolation band).
+two ``argmin`` passes over the solid axis), so its cost should grow linearly in N; the
+whole step is O(N) too (every solid has its own reference map, level set and
+extrapolation band).  Run it on one core for numbers comparable with docs/benchmarks.md:
+XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1".
 
 Usage: python benchmarks/bench_contact.py [--n 256] [--counts 1,2,4,8,32] [--steps 5]
        [--reps 2] [--no-compare]

@@ -1,8 +1,10 @@
-"""Regenerate the scenario pictures of docs/scenarios.md.
+"""Regenerate the scenario pictures of docs/scenarios.md and docs/fssi.md.
 
     python docs/make_figures.py            # runs what is missing, then draws
-Runs (into runs/doc_*) the thesis's scenarios at 128^2 (stick at 96^2) with the
-`refmap run` command and draws pressure panels at chosen times into docs/img/.
+    python docs/make_figures.py fssi       # only the several-solid pictures (docs/fssi.md)
+Runs (into runs/doc_*) the thesis's scenarios at 128^2 (stick at 96^2) and the FSSI
+scenarios two_balls and ball_stick at 96^2 with the `refmap run` command and draws panels
+of a field at chosen times, with the interface of every solid, into docs/img/.
 """
 
 import subprocess
@@ -20,24 +22,79 @@ RUNS = {
     "stick": (["--n", "96", "--t-end", "20", "--frames", "20"], [0.0, 4.0, 7.0, 10.0]),
     "rotor": (["--n", "128", "--t-end", "10", "--frames", "40"], [0.0, 2.5, 5.0, 10.0]),
 }
+# several solids with contact (docs/fssi.md): (run options, times drawn, field drawn)
+FSSI_RUNS = {
+    "two_balls": (  # at 96^2 the film between the balls breaks down after t ~ 12 (fssi.md)
+        ["--n", "96", "--t-end", "8", "--frames", "16"],
+        [0.0, 2.0, 3.0, 4.0, 6.0, 8.0],
+        "pressure",
+    ),
+    "ball_stick": (
+        ["--n", "96", "--t-end", "8", "--frames", "32"],
+        [0.0, 0.5, 1.0, 2.0, 4.0, 8.0],
+        "pressure",
+    ),
+}
+
+
+def _run(name, args, prefix="doc"):
+    run = ROOT / "runs" / f"{prefix}_{name}"
+    if not (run / "summary.json").exists():
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "refmap",
+                "run",
+                name,
+                *args,
+                "--out",
+                str(run),
+                "--overwrite",
+                "--no-progress",
+            ],
+            check=True,
+        )
+    return run
+
+
+def _panels(run, times, field):
+    ds = refmap.open_run(run)
+    grid = refmap.io.grid_from_attrs(ds.attrs)
+    panels = []
+    for t in times:
+        i = int(np.argmin(np.abs(ds.time.values - t)))
+        panels.append(
+            (float(ds.time[i]), ds[field].isel(time=i).values, ds["phi"].isel(time=i).values)
+        )
+    return grid, panels
+
+
+def scenario_figures():
+    for name, (args, times) in RUNS.items():
+        grid, panels = _panels(_run(name, args), times, "pressure")
+        out = ROOT / "docs" / "img" / f"{name}_pressure.png"
+        save_panel_png(out, grid, panels, "pressure", "corner", ncols=2)
+        print("wrote", out)
+
+
+def fssi_figures():
+    """docs/img/fssi_<scenario>.png: six times of each FSSI scenario, every solid's
+    interface drawn in black over the field."""
+    for name, (args, times, field) in FSSI_RUNS.items():
+        grid, panels = _panels(_run(name, args, "doc_fssi"), times, field)
+        out = ROOT / "docs" / "img" / f"fssi_{name}.png"
+        save_panel_png(out, grid, panels, field, "corner", ncols=3)
+        print("wrote", out)
 
 
 def main():
     (ROOT / "docs" / "img").mkdir(exist_ok=True)
-    for name, (args, times) in RUNS.items():
-        run = ROOT / "runs" / f"doc_{name}"
-        if not (run / "summary.json").exists():
-            subprocess.run([sys.executable, "-m", "refmap", "run", name, *args, "--out", str(run),
-                            "--overwrite", "--no-progress"], check=True)
-        ds = refmap.open_run(run)
-        grid = refmap.io.grid_from_attrs(ds.attrs)
-        panels = []
-        for t in times:
-            i = int(np.argmin(np.abs(ds.time.values - t)))
-            panels.append((float(ds.time[i]), ds["pressure"].isel(time=i).values, ds["phi"].isel(time=i).values))
-        out = ROOT / "docs" / "img" / f"{name}_pressure.png"
-        save_panel_png(out, grid, panels, "pressure", "corner", ncols=2)
-        print("wrote", out)
+    what = sys.argv[1:] or ["scenarios", "fssi"]
+    if "scenarios" in what:
+        scenario_figures()
+    if "fssi" in what:
+        fssi_figures()
 
 
 if __name__ == "__main__":
