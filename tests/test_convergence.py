@@ -114,6 +114,22 @@ def test_fit_and_pairwise_orders():
     assert math.isnan(fit_order(h, [0.0, 0.0, 1.0]))
 
 
+@pytest.mark.parametrize("p", [0.8, 1.0, 1.5, 2.0])
+def test_reference_corrected_order_undoes_the_reference_bias(p):
+    # runs with errors C h^p compared with a reference that has its own error C h_ref^p:
+    # the differences are C (h^p - h_ref^p); the plain slope overestimates p, the corrected
+    # fit recovers it (to its search resolution 1e-6; 1e-5 allowed)
+    h = 4.0 / np.array([60, 72, 90, 120, 180])
+    hr = 4.0 / 360
+    e = 0.3 * (h**p - hr**p)
+    assert fit_order(h, e) > p + 0.2  # the bias this guards against (1.46 for p = 1)
+    from refmap.convergence import fit_order_with_reference
+
+    assert fit_order_with_reference(h, e, hr) == pytest.approx(p, abs=1e-5)
+    # an exact reference (h_ref -> 0) gives the plain fit
+    assert fit_order_with_reference(h, 0.3 * h**p, 1e-12) == pytest.approx(p, abs=1e-5)
+
+
 def test_bilinear_is_exact_for_bilinear_fields():
     rng = np.random.default_rng(1)
     for g in (Grid(16, 16), Grid(24, 20, -1.0, 3.0, 0.0, 2.0)):
@@ -154,6 +170,7 @@ def test_csv_and_plot(tmp_path):
     row = dict(zip(lines[0].split(","), lines[1].split(","), strict=True))
     assert row["quantity"] == "u" and int(row["n"]) == 16
     assert float(row["fit_order_l2"]) == pytest.approx(1.5, abs=1e-6)
+    assert "refcorr_order_l2" in row
     png = plot_study(st, tmp_path / "c.png")
     assert png.stat().st_size > 10_000
 
