@@ -259,9 +259,13 @@ def run_csm(
     max_wall: float | None = None,
     verbose: bool = True,
     rho_f: float = 100.0,
+    gamma_factor: float = 3.0,
+    damp_all: bool = False,
 ):
     """Run CSM1/2 until the tip is at rest; returns the result dict (also written to out)."""
-    model, params, info = make_csm(case, nt, rho_f=rho_f)
+    model, params, info = make_csm(
+        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all
+    )
     if t_max is None:
         t_max = 12.0 / info["omega1"]
     out = Path(out)
@@ -323,7 +327,9 @@ def run_csm(
             break
     f.close()
     save_state(out / f"{tag}_state.npz", state)
-    return summarize_csm(case, nt, out, ok=ok, rho_f=rho_f, tol=tol)
+    return summarize_csm(
+        case, nt, out, ok=ok, rho_f=rho_f, tol=tol, gamma_factor=gamma_factor, damp_all=damp_all
+    )
 
 
 def save_state(path, state):
@@ -344,10 +350,12 @@ def summarize_csm(
     ok: bool = True,
     rho_f: float = 100.0,
     tol: float | None = None,
+    gamma_factor: float = 3.0,
+    damp_all: bool = False,
 ):
     """Result dict of a CSM run from its CSV history (the last line is the answer; the
     spread of u_y over the last 1 / omega1 measures how far from rest it still is)."""
-    _, _, info = make_csm(case, nt, rho_f=rho_f)
+    _, _, info = make_csm(case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all)
     out = Path(out)
     tag = f"{case}_nt{nt}"
     with open(out / f"{tag}.csv") as f:
@@ -783,9 +791,21 @@ def plot(out=DEFAULT_OUT, img=Path(__file__).resolve().parents[1] / "docs" / "im
                 rows[:, 2] / abs(ref["uy"]),
                 label=f"{r['case'].upper()}, {r['nt']} cells",
             )
+        from matplotlib.lines import Line2D
+
+        axs[0].legend(
+            handles=[
+                Line2D([], [], color="C0", label="CSM1 outline"),
+                Line2D([], [], color="C1", label="CSM2 outline"),
+                Line2D([], [], color="k", ls="--", label="4 cells"),
+                Line2D([], [], color="k", ls="-", label="6 cells"),
+            ],
+            fontsize=7,
+            loc="lower left",
+        )
         axs[0].set_aspect("equal")
         axs[0].set_xlim(0.15, 0.65)
-        axs[0].set_title("final flag outline (phi = 0); x: reference A, dot: ours")
+        axs[0].set_title("final flag outline (phi = 0); x: reference A, dot: ours", fontsize=9)
         axs[1].axhline(-1.0, color="r", lw=0.8, label="reference")
         axs[1].set_xlabel("t (s)")
         axs[1].set_ylabel("u_y(A) / |u_y,ref|")
@@ -813,14 +833,14 @@ def plot(out=DEFAULT_OUT, img=Path(__file__).resolve().parents[1] / "docs" / "im
                 shown = True
             with open(out / f"{p.stem}.csv") as f:
                 rows = np.array([[float(x) for x in q] for q in list(csv.reader(f))[1:]])
-            axs[1].plot(rows[:, 0], rows[:, 1], label=f"drag {p.stem}")
-            axs[1].plot(rows[:, 0], 10 * rows[:, 2], "--", label=f"10 x lift {p.stem}")
+            axs[1].plot(rows[:, 0], rows[:, 1], lw=0.8, label=f"drag (clamp) {p.stem}")
+            axs[1].plot(rows[:, 0], rows[:, 3], ":", lw=0.8, label=f"drag (box) {p.stem}")
+            axs[1].plot(rows[:, 0], rows[:, 2], "--", lw=0.8, label=f"lift (clamp) {p.stem}")
         axs[1].axhline(REFERENCE["fsi1"]["drag"], color="k", lw=0.6)
-        axs[1].axhline(10 * REFERENCE["fsi1"]["lift"], color="k", lw=0.6, ls="--")
-        axs[1].axhline(10 * REFERENCE["cfd1"]["lift"], color="gray", lw=0.6, ls=":")
+        axs[1].axhline(REFERENCE["fsi1"]["lift"], color="k", lw=0.6, ls="--")
         axs[1].set_xlabel("t (s)")
-        axs[1].set_ylabel("N/m")
-        axs[1].set_ylim(0, 20)
+        axs[1].set_ylabel("N/m (black: reference drag, lift)")
+        axs[1].set_ylim(-10, 30)
         axs[1].legend(fontsize=7, ncol=2)
         fig.tight_layout()
         fig.savefig(img / "turek_hron_channel.png", dpi=110)
@@ -839,11 +859,23 @@ def main(argv=None):
     ap.add_argument("--t-rigid", type=float, default=8.0, help="FSI1: start from CFD1 at this time")
     ap.add_argument("--rho-scale", type=float, default=1.0, help="FSI1: flag inertia factor")
     ap.add_argument("--rho-f", type=float, default=100.0, help="CSM: density of the light fluid")
+    ap.add_argument(
+        "--gamma-factor", type=float, default=3.0, help="CSM: damping rate / omega1_blur"
+    )
+    ap.add_argument("--damp-all", action="store_true", help="CSM: damp the fluid's mass too")
     ap.add_argument("--gamma", type=float, default=None, help="FSI1: flag mass damping (1/s)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     a = ap.parse_args(argv)
     if a.case in ("csm1", "csm2"):
-        r = run_csm(a.case, a.nt, t_max=a.t_max, out=a.out, rho_f=a.rho_f)
+        r = run_csm(
+            a.case,
+            a.nt,
+            t_max=a.t_max,
+            out=a.out,
+            rho_f=a.rho_f,
+            gamma_factor=a.gamma_factor,
+            damp_all=a.damp_all,
+        )
     elif a.case == "cfd1":
         r = run_cfd1(a.ny, t_end=a.t_end or 8.0, out=a.out)
     elif a.case == "fsi1":
