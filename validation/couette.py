@@ -216,13 +216,13 @@ def make_case(ny: int, setup: str = "uniform", numerics=None):
     )
 
 
-def run_2d(ny: int, setup: str = "uniform", t_end: float | None = None):
+def run_2d(ny: int, setup: str = "uniform", t_end: float | None = None, numerics=None):
     """Run the sandwich; return u(y) at TIMES (x-averaged), the interface velocity series
     (x-average of the two node rows next to y = 1/2) and a few health numbers."""
     import jax
     import jax.numpy as jnp
 
-    case = make_case(ny, setup)
+    case = make_case(ny, setup, numerics)
     t_end = t_end if t_end is not None else max(TIMES)
     model, params = case.build()
     s = model.initial_state(params)
@@ -266,13 +266,17 @@ def run_2d(ny: int, setup: str = "uniform", t_end: float | None = None):
     )
 
 
-def _cached_run(ny, setup, fresh=False):
+def _cached_run(ny, setup, fresh=False, blur_width=None):
+    from refmap.state import Numerics
+
     CACHE.mkdir(parents=True, exist_ok=True)
-    f = CACHE / f"{setup}_{ny}.json"
+    tag = "" if blur_width is None else f"_blur{blur_width:g}"
+    f = CACHE / f"{setup}_{ny}{tag}.json"
     if f.exists() and not fresh:
         r = json.loads(f.read_text())
     else:
-        r = run_2d(ny, setup)
+        num = None if blur_width is None else Numerics(blur_width=blur_width)
+        r = run_2d(ny, setup, numerics=num)
         f.write_text(
             json.dumps(
                 {
@@ -447,6 +451,30 @@ def print_study(st):
     )
 
 
+BLUR_RUNS = ((20, 1.0), (40, 1.0), (20, 3.0))  # (ny, blur width / h); the default is 2
+
+
+def blur_sensitivity(setup="uniform", runs=BLUR_RUNS, fresh=False):
+    """Errors of the uniform set-up when only the blur width changes."""
+    ref = reference(setup)
+    amp, _ = interface_amplitude_phase(SETUPS[setup])
+    print(f"\n## blur width ({setup}); default 2h")
+    print(
+        "| ny | blur / h | L2 err u | max err u | amplitude err (sampled) | phase err (sampled) |"
+    )
+    print("|---|---|---|---|---|---|")
+    rows = sorted(set(runs) | {(ny, 2.0) for ny, _ in runs})
+    for ny, bw in rows:
+        run = _cached_run(ny, setup, fresh, None if bw == 2.0 else bw)
+        e = errors(run, ref)
+        a, p = interface_fit(run)
+        sa, sp_ = sampled_interface_amplitude_phase(SETUPS[setup], ny)
+        print(
+            f"| {ny} | {bw:g} | {max(v[0] for v in e.values()):.2e} | "
+            f"{max(v[1] for v in e.values()):.2e} | {(a - sa) / amp:+.2%} | {p - sp_:+.4f} |"
+        )
+
+
 def print_reference(setup, rows):
     print(
         f"\n## 1D reference ({setup}): max error at the four times against n = {N_REF}; "
@@ -574,6 +602,7 @@ def main(argv=None):
         print_study(st)
         studies.append(st)
     if studies and not a.quick:
+        blur_sensitivity(fresh=a.fresh)
         figure(studies, Path(a.figure))
         print(f"\nfigure: {a.figure}")
 
