@@ -27,9 +27,12 @@ def main():
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--no-compare", action="store_true", help="skip the step without contact")
+    ap.add_argument("--wall", action="store_true", help="wall time instead of CPU time")
     a = ap.parse_args()
     counts = tuple(int(c) for c in a.counts.split(","))
-    rows = benchmark(counts, n=a.n, steps=a.steps, reps=a.reps, compare=not a.no_compare)
+    rows = benchmark(
+        counts, n=a.n, steps=a.steps, reps=a.reps, compare=not a.no_compare, cpu_time=not a.wall
+    )
     base = rows[0]
     print("\nratio to N = 1 (linear growth means ratio ~ N):")
     for r in rows:
