@@ -154,7 +154,7 @@ def run(n, t_end, every=0.05, state=None, snap_every=1.0, log=None, **kw):
             rows.append(_row(diag(s, params), s))
             if abs(tt / snap_every - round(tt / snap_every)) < 1e-9:
                 snaps[f"{tt:.2f}"] = (np.asarray(s.phi[0]), np.asarray(jnp.hypot(s.v[0], s.v[1])))
-        if log is not None and abs(tt - round(tt)) < 1e-9:
+        if log is not None and rows and abs(tt - round(tt)) < 1e-9:
             el = time.perf_counter() - t0
             print(
                 f"  n={n} {kw} t={tt:.1f} c=({rows[-1][1]:.4f}, {rows[-1][2]:.4f}) "
@@ -416,7 +416,7 @@ def main(argv=None):
     ap.add_argument("--grids", default="32,48,64", help="resolutions of the first-loop study")
     ap.add_argument("--t-loop", type=float, default=9.0, help="end time of the first-loop runs")
     ap.add_argument(
-        "--span-grids", default="32,48", help="resolutions also run over the whole reference"
+        "--span-grids", default="32,48,64", help="resolutions also run over the whole reference"
     )
     ap.add_argument("--t-span", type=float, default=20.0)
     ap.add_argument("--sens-n", type=int, default=48, help="resolution of the sensitivity study")
