@@ -27,7 +27,7 @@ Choices (see docs/validation_lid_cavity.md for the reasons):
 * fixed time step dt = cfl min(h^2 / (4 (mu + zeta)), h / c, h / c_solid), cfl = 0.5
   (explicit diffusion limit of mu + zeta; the model's adaptive step does not know zeta).
 
-Run ``python validation/lid_cavity.py`` (about 15 CPU-minutes; runs are cached in
+Run ``python validation/lid_cavity.py`` (about 50 minutes on one core; runs are cached in
 $REFMAP_LID_RUNS, default /work/runs/lid, and continued from their last state when a
 longer run is asked for).  ``--quick`` runs the small version only.
 """
