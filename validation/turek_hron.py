@@ -3,9 +3,11 @@
 One command per case (results as JSON + CSV history in ``--out``, default /work/runs/th)::
 
     python validation/turek_hron.py csm1 --nt 4          # static flag under gravity
-    python validation/turek_hron.py csm2 --nt 4
-    python validation/turek_hron.py cfd1 --ny 41         # rigid flag in the channel flow
-    python validation/turek_hron.py fsi1 --ny 41         # elastic flag in the channel flow
+    python validation/turek_hron.py csm2 --nt 6
+    python validation/turek_hron.py cfd1 --ny 41 --t-end 8                    # rigid flag
+    python validation/turek_hron.py fsi1 --ny 41 --t-rigid 8 --rho-scale 100  # elastic flag
+
+(the exact commands behind each number are in docs/validation_turek_hron.md)
     python validation/turek_hron.py table                # table of every result in --out
     python validation/turek_hron.py plot                 # docs/img/turek_hron_*.png
 
@@ -26,13 +28,16 @@ Set-up (see docs/validation_turek_hron.md for the discussion of each choice):
   in a steady state (v = 0 in the solid).
 * CSM: gravity acts on the solid's mass only (a body force ``(rho - w_f rho_f) g``), so the
   fluid round the flag carries no hydrostatic pressure and gives no buoyancy; the fluid is
-  light (rho_f = 10, 1 % of the solid) and inviscid but for the numerical viscosity that the
-  explicit step needs, so at rest it exerts a uniform pressure and nothing else.  The domain
+  light (rho_f = 100, 10 % of the solid), with a small shear viscosity and a bulk viscosity
+  for its sound, so at rest it exerts a uniform pressure and nothing else.  The domain
   is a box round the flag (cutting the clamped cylinder), with walls.
 * Channel: [0, 2.5] x [0, 0.41], parabolic inflow 1.5 Ubar 4 y (H - y) / H^2 with the
   (1 - cos(pi t / 2)) / 2 ramp, outflow at x = 2.5, no-slip top and bottom; rho_f = 1000,
-  mu_f = 1 (eta = 2 mu_f in the package's convention), sound speed c_f = 3 (Mach 0.1 at the
-  peak inflow speed 0.3).
+  mu_f = 1 (eta = 2 mu_f in the package's convention), sound speed c_f = 2 (Mach 0.1 on
+  Ubar), a bulk viscosity for its sound; forces averaged over the last 3.6 s (sound sloshing).
+  The script rebuilds the model's boundary conditions with rho_f0 = rho_f (the package's
+  default 1.0 is the inflow's density ghost) and extends rho_f into held nodes
+  (:class:`HeldDensityModel`).
 * Drag and lift: :func:`refmap.forces.held_force`, the momentum the clamp removes per unit
   time (= the force of fluid and flag on the cylinder's held nodes; in a steady state the
   flag passes its whole load to its root, so this is the force on cylinder + flag), checked
