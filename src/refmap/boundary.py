@@ -227,8 +227,9 @@ class BoundaryConditions:
         return rule
 
     # ------------------------------------------------------------------ padding
-    def _ghosts(self, f, rule: _EdgeRule, low: bool, axis: int, t):
+    def _ghosts(self, f, rule: _EdgeRule, low: bool, axis: int, t, rho0=None):
         """Two ghost layers (k = 2, 1 order outwards-in) for one edge of ``f``."""
+        rho0 = self.rho_f0 if rho0 is None else rho0
         n = f.shape[axis - 2]
 
         def take(i):
@@ -248,7 +249,8 @@ class BoundaryConditions:
                 if axis == 1:
                     d = self._extend(d, f0.shape[-1])
                 if how is None:
-                    g = jnp.where(self._extend(jnp.asarray(m), f0.shape[-1]) if axis == 1 else jnp.asarray(m), self.rho_f0, g)
+                    mm = jnp.asarray(m)
+                    g = jnp.where(self._extend(mm, f0.shape[-1]) if axis == 1 else mm, rho0, g)
                 else:
                     g = g + d * _waveform(seg, t)
             ghosts.append(g)
@@ -263,15 +265,15 @@ class BoundaryConditions:
             return a
         return jnp.pad(a, (pad, pad), mode="edge")
 
-    def _pad_axis(self, f, axis, comp, t):
+    def _pad_axis(self, f, axis, comp, t, rho0=None):
         lo, hi = ("left", "right") if axis == 0 else ("bottom", "top")
         ax = f.ndim - 2 + axis
         if self.periodic[axis]:
             widths = [(0, 0)] * f.ndim
             widths[ax] = (2, 2)
             return jnp.pad(f, widths, mode="wrap")
-        gl2, gl1 = self._ghosts(f, self._rules[(lo, comp)], True, axis, t)
-        gh1, gh2 = self._ghosts(f, self._rules[(hi, comp)], False, axis, t)
+        gl2, gl1 = self._ghosts(f, self._rules[(lo, comp)], True, axis, t, rho0)
+        gh1, gh2 = self._ghosts(f, self._rules[(hi, comp)], False, axis, t, rho0)
         return jnp.concatenate(
             [jnp.expand_dims(x, ax) if x.ndim < f.ndim else x for x in (gl2, gl1)]
             + [f]
@@ -279,15 +281,18 @@ class BoundaryConditions:
             axis=ax,
         )
 
-    def _pad(self, f, comp, t):
-        return self._pad_axis(self._pad_axis(f, 0, comp, t), 1, comp, t)
+    def _pad(self, f, comp, t, rho0=None):
+        return self._pad_axis(self._pad_axis(f, 0, comp, t, rho0), 1, comp, t, rho0)
 
     def pad_velocity(self, vel, t):
         """(2, nx, ny) -> (2, nx + 4, ny + 4) with two ghost layers."""
         return jnp.stack([self._pad(vel[0], "u", t), self._pad(vel[1], "v", t)])
 
-    def pad_density(self, rho, t=0.0):
-        return self._pad(rho, "rho", t)
+    def pad_density(self, rho, t=0.0, rho0=None):
+        """(nx, ny) -> (nx + 4, ny + 4).  Ghosts at flow-through edges take the fluid's
+        reference density ``rho0`` (the fluid's own ``FluidParams.rho0``; the constructor's
+        ``rho_f0`` when not given)."""
+        return self._pad(rho, "rho", t, rho0)
 
     def pad_linear(self, f):
         """Linear extrapolation (affine-exact) into two ghost layers, or wrap if periodic."""

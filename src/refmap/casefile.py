@@ -5,7 +5,7 @@ A case file mirrors :class:`refmap.case.Case`::
     name = "flap"
     gravity = [0.0, 0.0]
     [grid]      n = 128  (or nx, ny),  ax, bx, ay, by
-    [fluid]     rho0, lambda_f, eta, extra_viscosity
+    [fluid]     rho0, lambda_f, eta, extra_viscosity, bulk_viscosity
     [time]      t_end, frames
     [numerics]  cfl and the other fields of refmap.state.Numerics
     [output]    picture_field, movie, pictures, out
@@ -323,7 +323,13 @@ def _spec_from_dataclass(
 FluidSpec = _spec_from_dataclass(
     "FluidSpec",
     FluidParams,
-    {"rho0": {"gt": 0}, "lambda_f": {"gt": 0}, "eta": {"ge": 0}, "extra_viscosity": {"ge": 0}},
+    {
+        "rho0": {"gt": 0},
+        "lambda_f": {"gt": 0},
+        "eta": {"ge": 0},
+        "extra_viscosity": {"ge": 0},
+        "bulk_viscosity": {"ge": 0},
+    },
 )
 NumericsSpec = _spec_from_dataclass(
     "NumericsSpec",
@@ -1626,7 +1632,8 @@ _COMMENTS = {
     ("time",): "simulated time span and number of output frames",
     (
         "fluid",
-    ): "p = lambda_f (rho_f / rho0 - 1); viscous stress eta sym(grad v); extra_viscosity lap(v)",
+    ): "p = lambda_f (rho_f / rho0 - 1); viscous stress eta sym(grad v) + bulk_viscosity div(v) I;"
+    " extra_viscosity lap(v)",
     ("numerics",): "lengths in grid spacings h; cfl scales the adaptive time step",
     ("output",): "picture_field: the field drawn in the PNG snapshots (and the movie)",
     ("boundary",): 'each edge: "wall", "slip", "outflow", "periodic", or a list of segments\n'

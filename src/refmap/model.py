@@ -256,8 +256,8 @@ class Model:
     def time_step(self, state: State, params: Params):
         """Adaptive dt = cfl * min(limits); returns (dt, index into LIMIT_NAMES).
 
-        * viscous: h^2 rho_min / (4 (eta + extra_viscosity)), explicit diffusion in 2D with
-          the largest effective kinematic viscosity;
+        * viscous: h^2 rho_min / (4 (eta + extra_viscosity + bulk_viscosity)), explicit
+          diffusion in 2D with the largest effective kinematic viscosity;
         * solid wave: h / c_L, the fastest small-strain wave of every law;
         * wave damping: 2 extra_viscosity / M (M the longitudinal modulus).  Forward Euler
           amplifies an undamped elastic wave; with the damping nu k^2 of the extra viscosity
@@ -279,7 +279,7 @@ class Model:
             mu, M = law.moduli()
             c_solid = jnp.maximum(c_solid, jnp.sqrt(M / law.rho0))
             M_max = jnp.maximum(M_max, M)
-        nu = (fl.eta + fl.extra_viscosity) / rho_min
+        nu = (fl.eta + fl.extra_viscosity + fl.bulk_viscosity) / rho_min
         vmax = jnp.max(jnp.abs(state.v[0]) + jnp.abs(state.v[1]))
         damping = jnp.where(
             (fl.extra_viscosity > 0) & (len(params.laws) > 0),
@@ -287,7 +287,7 @@ class Model:
             jnp.inf,
         )
         # the same bound for sound waves in the fluid, damped by eta and the extra viscosity
-        nu_f = fl.eta + fl.extra_viscosity
+        nu_f = fl.eta + fl.extra_viscosity + fl.bulk_viscosity
         damping = jnp.minimum(damping, jnp.where(nu_f > 0, 2.0 * nu_f / fl.lambda_f, jnp.inf))
         limits = jnp.stack(
             [
@@ -317,7 +317,7 @@ class Model:
         fl = params.fluid
         bc = self.bc
         vp = bc.pad_velocity(state.v, state.t)
-        rp = bc.pad_density(state.rho_f, state.t)
+        rp = bc.pad_density(state.rho_f, state.t, fl.rho0)
         vp1 = vp[:, 1:-1, 1:-1]
         rp1 = rp[1:-1, 1:-1]
 
@@ -326,9 +326,10 @@ class Model:
         p = fl.lambda_f * (rp1[:-1, :-1] / fl.rho0 - 1.0)
         ux, uy = grad_corner(vp1[0], dx, dy)
         vx, vy = grad_corner(vp1[1], dx, dy)
-        sxx_f = -p + fl.eta * ux
+        bulk = fl.bulk_viscosity * (ux + vy)
+        sxx_f = -p + fl.eta * ux + bulk
         sxy_f = 0.5 * fl.eta * (uy + vx)
-        syy_f = -p + fl.eta * vy
+        syy_f = -p + fl.eta * vy + bulk
 
         out = dict(p_corner=p)
         N = self.n_solids
@@ -384,7 +385,7 @@ class Model:
 
         d = self.derived(state, params)
         vp = bc.pad_velocity(v, t)
-        rp = bc.pad_density(rho_f, t)
+        rp = bc.pad_density(rho_f, t, fl.rho0)
 
         # 6. updates of v and rho_f
         divs = div_node(d["sxx"], d["sxy"], d["syy"], dx, dy)

@@ -69,16 +69,35 @@ class FluidParams:
 
     p = lambda_f (rho_f / rho0 - 1); viscous stress eta * sym(grad v) (the thesis's
     convention: a dynamic viscosity mu = eta / 2 in the usual 2 mu D form); an extra
-    stabilising term ``extra_viscosity * lap(v) / rho`` in the velocity update everywhere.
+    stabilising term ``extra_viscosity * lap(v) / rho`` in the velocity update everywhere;
+    an optional bulk viscosity: the isotropic stress ``bulk_viscosity * div(v) * I``,
+    weighted like the rest of the fluid stress by the fluid fraction.
+
+    Sound in the fluid needs damping: the pressure force takes the bottom-left node's
+    pressure (one-sided) while the density update uses a centred divergence, and that pair
+    amplifies short sound waves unless the longitudinal diffusivity
+    ``(eta + extra_viscosity + bulk_viscosity) / rho0`` is at least about ``c h / 2``
+    (c the sound speed, h the grid spacing).  The thesis's fluid (c = 1, eta = 0.12) meets
+    this on every grid it uses; a fast, nearly inviscid fluid (low Mach number, high
+    Reynolds number) does not, and :meth:`refmap.case.Case.validate` warns then and names
+    the ``bulk_viscosity`` that meets it.  A bulk viscosity damps only compression, so a
+    nearly incompressible flow is hardly affected by it.
     """
 
     rho0: float = 1.0
     lambda_f: float = 1.0
     eta: float = 0.12
     extra_viscosity: float = 0.02
+    bulk_viscosity: float = 0.0
 
     def __post_init__(self):
-        checks = {"rho0": True, "lambda_f": True, "eta": False, "extra_viscosity": False}
+        checks = {
+            "rho0": True,
+            "lambda_f": True,
+            "eta": False,
+            "extra_viscosity": False,
+            "bulk_viscosity": False,
+        }
         for name, strict in checks.items():
             v = getattr(self, name)
             if isinstance(v, (int, float)):
@@ -94,7 +113,7 @@ class FluidParams:
         return {f.name: float(getattr(self, f.name)) for f in fields(self)}
 
 
-_register(FluidParams, ["rho0", "lambda_f", "eta", "extra_viscosity"])
+_register(FluidParams, ["rho0", "lambda_f", "eta", "extra_viscosity", "bulk_viscosity"])
 
 
 @dataclass(frozen=True)
