@@ -108,3 +108,24 @@ def test_bulk_viscosity_tames_the_low_mach_cavity():
     assert results[10.0 / 32][0] < 1.0
     assert abs(results[10.0 / 32][1] - 1.0) < 1e-3
     jax.clear_caches()
+
+
+def test_no_sound_warning_without_fluid():
+    """A periodic box filled with solid has no fluid, so its fluid parameters do not matter."""
+    from refmap.geometry import Rectangle
+    from refmap.materials import LogNeoHookean
+    from refmap.model import Solid
+
+    solid = Solid(shape=Rectangle(center=(0.5, 0.5), half_size=(2.0, 2.0)), law=LogNeoHookean())
+    case = Case(
+        name="filled",
+        grid=Grid(16, 16, 0.0, 1.0, 0.0, 1.0),
+        solids=(solid,),
+        boundary=Boundary(*(["periodic"] * 4)),
+        fluid=FluidParams(eta=0.0, extra_viscosity=0.0),
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        case.validate()
+    with pytest.warns(CaseWarning):
+        case.replace(solids=()).validate()
