@@ -116,7 +116,7 @@ def test_no_sound_warning_without_fluid():
     from refmap.materials import LogNeoHookean
     from refmap.model import Solid
 
-    solid = Solid(shape=Rectangle(center=(0.5, 0.5), half_size=(2.0, 2.0)), law=LogNeoHookean())
+    solid = Solid(shape=Rectangle(center=(0.5, 0.5), half_size=(2.0, 2.0)), law=LogNeoHookean(G=10.0, kappa=10.0))
     case = Case(
         name="filled",
         grid=Grid(16, 16, 0.0, 1.0, 0.0, 1.0),
