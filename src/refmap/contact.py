@@ -518,6 +518,7 @@ def benchmark(
     compare: bool = True,
     verbose: bool = True,
     cpu_time: bool = True,
+    numerics=None,
 ):
     """Wall-clock cost per step for N discs on a lattice in a closed n x n box.
 
@@ -531,7 +532,9 @@ def benchmark(
     The discs sit on a lattice with gaps of 0.24 pitch (26 cells for N = 4 at 256^2, 9 for
     N = 32): the pair pressure is evaluated everywhere but is exactly zero, so the steps
     with and without contact do the same data-dependent work (the adaptive smoothing of
-    the maps) and their difference is the cost of the contact term.
+    the maps) and their difference is the cost of the contact term.  ``numerics`` (a
+    :class:`refmap.state.Numerics`) replaces the defaults, e.g. ``fixed_smooth_sweeps=80``
+    for the worst case of the map smoothing (every solid smoothed the full 80 sweeps).
     """
     from refmap.boundary import Boundary
     from refmap.grid import Grid
@@ -557,7 +560,7 @@ def benchmark(
         return first, best
 
     def step_cost(solids, forces):
-        model = Model(Grid(n, n), solids, Boundary(), body_forces=forces)
+        model = Model(Grid(n, n), solids, Boundary(), numerics=numerics, body_forces=forces)
         params = model.default_params(gravity=(0.0, -0.2))
         state = jax.jit(model.initial_state)(params)
         dt = model.time_step(state, params)[0]
