@@ -399,7 +399,18 @@ class Model:
         # there.  (Unweighted, a steady converging solid velocity -- at the edge of the
         # stick's anchor -- grows rho_f exponentially inside the solid, where no fluid
         # pressure pushes back: the thesis's stick at 128^2 blew up at t ~ 9.)
-        drho = advect(rp, v, dx, dy) - d["wf_n"] * rho_f * divergence_centered(vp[0], vp[1], dx, dy, g=2)
+        if n.compression == "corner":
+            # forward divergence at each node's top-right corner: the negative transpose of
+            # the backward pressure gradient that div_node makes of the bottom-left-node
+            # corner pressure (see Numerics), with that corner's fluid fraction
+            vp1 = vp[:, 1:-1, 1:-1]
+            ux = grad_corner(vp1[0], dx, dy)[0][1:, 1:]
+            vy = grad_corner(vp1[1], dx, dy)[1][1:, 1:]
+            wf_tr = d["wf_c"][1:, 1:]
+            drho = advect(rp, v, dx, dy) - wf_tr * rho_f * (ux + vy)
+        else:
+            div_c = divergence_centered(vp[0], vp[1], dx, dy, g=2)
+            drho = advect(rp, v, dx, dy) - d["wf_n"] * rho_f * div_c
         v_new = v + dt * acc
         rho_new = rho_f + dt * drho
 
