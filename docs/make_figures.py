@@ -24,9 +24,9 @@ RUNS = {
 }
 # several solids with contact (docs/fssi.md): (run options, times drawn, field drawn)
 FSSI_RUNS = {
-    "two_balls": (  # at 96^2 the film between the balls breaks down after t ~ 12 (fssi.md)
-        ["--n", "96", "--t-end", "8", "--frames", "16"],
-        [0.0, 2.0, 3.0, 4.0, 6.0, 8.0],
+    "two_balls": (
+        ["--n", "96", "--t-end", "16", "--frames", "16"],
+        [0.0, 2.0, 3.0, 4.0, 8.0, 16.0],
         "pressure",
     ),
     "ball_stick": (
