@@ -53,15 +53,15 @@ def two_balls(n: int = 128) -> Case:
     # The anchored ball is held by its centre (radius 0.2 of 0.5), so its rim deforms freely.
     # The flow (u = 0.3, ramped up over t = 1, prescribed on the left and right edges as in
     # the thesis's stick case, free slip top and bottom) carries the mobile ball, 0.3 away,
-    # onto it head-on.  Measured at 64^2: contact from t ~ 2.5, then the pair rests about 1.5
-    # cells apart under a contact pressure of ~0.3 (J in [0.93, 1.10]) with no overlap up to
-    # t = 12; the mobile ball starts to slide off sideways (frictionless contact) at t ~ 10.
-    # The deformation stays moderate: the flow's stresses (~ rho U^2, eta U / R) are small
-    # next to G = 10, and a much faster flow is transonic in this fluid (sound speed 1).
-    # Measured at 96^2 (docs/fssi.md, Pictures): contact at t ~ 2.5, gap 1.2 cells at t = 3.5
-    # closing to 0.6 cells at t = 9, no overlap; but from t ~ 7 the fluid density in the thin
-    # film between the balls grows a jump across it (rho_f 12 at t = 9, 118 at t = 12) and
-    # the run breaks down at t ~ 14.  Hence t_end = 10 (it was 20).
+    # onto it head-on.  The deformation stays moderate: the flow's stresses (~ rho U^2,
+    # eta U / R) are small next to G = 10, and a much faster flow is transonic in this
+    # fluid (sound speed 1).
+    # Measured with the energy-consistent compression (the thesis's centred one let the
+    # film between the balls pump its density and broke the 96^2 run at t ~ 14): at 128^2
+    # contact from t ~ 2.7, gap 0.045 (1.4 cells) from t = 4 to t = 20 under a contact
+    # pressure of 0.2-0.3, no overlap, J in [0.93, 1.03]; at 64^2 gap 0.09 (1.4 cells),
+    # and the mobile ball slowly slides off sideways (frictionless; centroid y -0.07 by
+    # t = 16, against -0.003 at 128^2).
     fixed = Solid(
         shape=Disc(center=(0.55, 0.0), radius=0.5),
         law=_law(),
@@ -77,7 +77,7 @@ def two_balls(n: int = 128) -> Case:
         boundary=Boundary(left=(flow,), right=(flow,), bottom="slip", top="slip"),
         fluid=FluidParams(),
         numerics=Numerics(compression="corner"),
-        t_end=10.0,
+        t_end=20.0,
         frames=40,
         description=DESCRIPTIONS["two_balls"],
         contact=Contact(),
@@ -95,9 +95,10 @@ def ball_stick(n: int = 128) -> Case:
     # is twice as dense as the fluid: a ball of density 1 shares half its momentum with the
     # fluid it sets moving at once (added mass) and the viscous fluid (eta = 0.12) stops it
     # about two cells short of the stick at 64^2, so it pushes the stick only through the
-    # fluid film; with density 2 it reaches it, the contact pressure acts (gap ~1.7 cells),
-    # the stick bends by ~0.15 at its tip, springs back and throws the ball off (measured
-    # at 64^2: ball centre x -0.3 -> 0.17 at t = 2 -> -0.14 at t = 6, y 0.5 -> -0.17).
+    # fluid film; with density 2 it reaches it, the contact pressure acts (closest gap 1.1
+    # cells), the top of the stick is pushed 0.43 sideways, springs back and throws the
+    # ball off (measured at 64^2: ball centre x -0.3 -> 0.20 at t = 2.5 -> -0.14 at t = 6,
+    # y 0.5 -> -0.15 at t = 6).
     stick = Solid(
         shape=Capsule(center=(0.6, -0.5), half_length=0.95, radius=0.25, angle=math.pi / 2),
         law=_law(),
@@ -149,10 +150,10 @@ def settle(n: int = 128) -> Case:
     # with or without contact (amplitude 0.6 at 32^2; 0.02-0.04 for lambda_f = 5).  The dt
     # is set by the solids either way.  The fluid starts uniform, so switching on gravity
     # first makes the whole column oscillate (period ~ 2 H / c ~ 4) and the balls bob with
-    # it.  Measured at 64^2 to t = 16: the bottom row rests about half a cell above the floor
-    # and is pushed apart by ball 3, which settles into the notch between balls 0 and 1
-    # (contact pressure ~2, no overlap); ball 4 is still on its way down into the notch
-    # between balls 1 and 2; fluid mass within 5 %.
+    # it.  Measured at 64^2 to t = 16: the bottom row rests one cell above the floor and is
+    # pushed apart by ball 3, which settles into the notch between balls 0 and 1 (contact
+    # pressure up to 0.38, no overlap); ball 4 is still on its way down into the notch
+    # between balls 1 and 2; fluid mass -6.0 % (non-conservative density update).
     solids = tuple(
         Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"ball{k} (r={r:g}, rho={rho:g})")
         for k, (c, r, rho) in enumerate(SETTLE_BALLS)
