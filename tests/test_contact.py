@@ -387,8 +387,9 @@ def test_two_balls_film_density_stays_bounded_with_corner_compression():
     of one core).  With the thesis's centred compression a one-node velocity jet in the
     film pumped its density without bound (measured rho_f max 11.8 at t = 9, 67 at t = 11,
     broken at t ~ 14; docs/method.md); the scenario's energy-consistent compression keeps
-    it bounded (measured max 3.1 at t = 8, 2.8 at t = 14) with no overlap of the balls.
-    The bound 6 is twice the largest value seen; the broken run passes 6 before t = 8.5."""
+    it bounded (measured peak 3.8 at t = 5.5, 2.8 at t = 14) with no overlap of the balls.
+    The bound 6 is 1.6 times the largest value seen; the broken run passes 6 before
+    t = 8.5 and grows x1.5 per half time unit."""
     from refmap.scenarios_fssi import two_balls
 
     case = two_balls(96)
