@@ -13,7 +13,9 @@ comparisons, so that the effect of the reference's own error can be seen:
 * ``thesis_xi``: 60, 120, 180 against 360 (the thesis's rungs for xi and its derivative);
 * ``ref3x``: 60, 72, 90, 120 against 360 (reference 3x finer than the finest rung);
 * ``vs180``: 60, 72, 90 against 180 (reference 2x finer; no 360 run needed);
-* ``vs180_all``: 60, 72, 90, 120 against 180.
+* ``vs180_all``: 60, 72, 90, 120 against 180;
+* ``vs240``, ``vs240_all``: 60, 72, 90 (and 120) against 240 (needs ``--with-240``, about
+  27,000 steps of the 240^2 rung, ~50 minutes of one core).
 
 Regenerate (the 360^2 rung is ~60,000 steps, about two hours of one core; the others take
 about ten minutes together; finished rungs in --out are reused, an interrupted 360^2 run
@@ -23,7 +25,8 @@ continues from its last checkpoint)::
     python validation/rotor_convergence.py --out /work/runs/rotor_conv --no-run  # analyse only
 
 Writes docs/img/rotor_convergence.png (thesis set-up; or the vs180 comparison while the
-360^2 rung is missing), docs/img/rotor_convergence_vs180.png, and OUT/summary.md +
+360^2 rung is missing), docs/img/rotor_convergence_vs180.png,
+docs/img/rotor_convergence_vs240.png (with the 240^2 rung), and OUT/summary.md +
 OUT/<comparison>.csv.
 """
 
@@ -53,6 +56,8 @@ COMPARISONS = {
     "ref3x": ([60, 72, 90, 120], 360),
     "vs180": ([60, 72, 90], 180),
     "vs180_all": ([60, 72, 90, 120], 180),
+    "vs240": ([60, 72, 90], 240),
+    "vs240_all": ([60, 72, 90, 120], 240),
 }
 
 
@@ -67,11 +72,16 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--img", type=Path, default=ROOT / "docs" / "img", help="folder for the figures"
     )
+    ap.add_argument(
+        "--with-240", action="store_true", help="also run the 240^2 reference (vs240 rows)"
+    )
     a = ap.parse_args(argv)
 
     if not a.no_run:
+        if a.with_240:
+            run_ladder("rotor", [60, 72, 90, 120], 240, T_END, a.out, jobs=a.jobs)
         run_ladder("rotor", LADDER, REF, T_END, a.out, jobs=a.jobs)
-    have = {n for n in [*LADDER, REF] if rung_path(a.out, "rotor", n).exists()}
+    have = {n for n in [*LADDER, REF, 240] if rung_path(a.out, "rotor", n).exists()}
     lines = [
         "| comparison | rungs | reference | u | v | xi_x | xi_y | grad_xi |",
         "|---|---|---|---|---|---|---|---|",
@@ -115,6 +125,12 @@ def main(argv=None) -> int:
             studies["vs180"],
             a.img / "rotor_convergence_vs180.png",
             title="rotor, t = 4: 60, 72, 90 against 180 (reference 2x finer)",
+        )
+    if "vs240_all" in studies:
+        plot_study(
+            studies["vs240_all"],
+            a.img / "rotor_convergence_vs240.png",
+            title="rotor, t = 4: 60-120 against 240 (reference 2x finer)",
         )
     if "thesis" in studies:
         plot_study(
