@@ -95,6 +95,8 @@ REFERENCE = {
 MU_S = {"csm1": 0.5e6, "csm2": 2.0e6, "fsi1": 0.5e6, "cfd1": 0.5e6}
 
 DEFAULT_OUT = Path("/work/runs/th")
+# fluid compression of the channel runs (refmap.state.Numerics.compression; --compression)
+COMPRESSION = "centred"
 
 
 def svk(mu, rho=RHO_S):
@@ -503,7 +505,11 @@ def make_channel(
     damp = SolidDamping(eta=eta_s, gamma=gamma, damp_all=False, zeta=zeta)
     solid = Solid(shape=BODY, law=law, anchor=anchor, name="body")
     model = HeldDensityModel(
-        grid, (solid,), channel_boundary(), Numerics(dt_fixed=dt), body_forces=(damp,)
+        grid,
+        (solid,),
+        channel_boundary(),
+        Numerics(dt_fixed=dt, compression=COMPRESSION),
+        body_forces=(damp,),
     )
     # Model builds its BoundaryConditions with the default reference density 1.0, which the
     # inflow's density ghosts take ("rho_f0 at inflowing velocity segments"); with
@@ -693,7 +699,7 @@ def run_fsi1(
         xi=jnp.asarray(z["xi"]),
         phi=jnp.asarray(z["phi"]),
     )
-    tag = f"fsi1_ny{ny}_r{rho_scale:g}"
+    tag = f"fsi1_ny{ny}_r{rho_scale:g}" + ("" if COMPRESSION == "centred" else f"_{COMPRESSION}")
     f, w = _writer(out / f"{tag}.csv", HEADER)
     t0 = time.time()
     state, rows, steps = run_channel(model, params, state, t_end, chunk, tag, out, writer=w)
@@ -870,7 +876,15 @@ def main(argv=None):
     ap.add_argument("--damp-all", action="store_true", help="CSM: damp the fluid's mass too")
     ap.add_argument("--gamma", type=float, default=None, help="FSI1: flag mass damping (1/s)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    ap.add_argument(
+        "--compression",
+        choices=["centred", "corner"],
+        default="centred",
+        help="channel runs: fluid compression (Numerics.compression)",
+    )
     a = ap.parse_args(argv)
+    global COMPRESSION
+    COMPRESSION = a.compression
     if a.case in ("csm1", "csm2"):
         r = run_csm(
             a.case,
