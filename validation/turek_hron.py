@@ -99,6 +99,12 @@ DEFAULT_OUT = Path("/work/runs/th")
 COMPRESSION = "centred"
 
 
+def _compression_suffix() -> str:
+    """File-name suffix of the channel runs: none for the default compression, so the CFD1
+    state an FSI1 run starts from was made with the same compression."""
+    return "" if COMPRESSION == "centred" else f"_{COMPRESSION}"
+
+
 def svk(mu, rho=RHO_S):
     """St. Venant--Kirchhoff with Poisson ratio 0.4: lam = 2 mu nu / (1 - 2 nu) = 4 mu."""
     return StVenantKirchhoff(mu=mu, lam=2.0 * mu * NU_S / (1.0 - 2.0 * NU_S), rho0=rho)
@@ -615,7 +621,7 @@ def run_cfd1(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     model, params, info = make_channel(ny, rigid=True)
-    tag = f"cfd1_ny{ny}"
+    tag = f"cfd1_ny{ny}{_compression_suffix()}"
     f, w = _writer(out / f"{tag}.csv", HEADER)
     t0 = time.time()
     state, rows, steps = run_channel(
@@ -676,10 +682,11 @@ def run_fsi1(
     forces and u(A) averaged over the last ``avg`` seconds (see run_cfd1)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    src = out / f"cfd1_ny{ny}_state.npz"
+    src = out / f"cfd1_ny{ny}{_compression_suffix()}_state.npz"
     if not src.exists():
         raise SystemExit(
-            f"run `turek_hron.py cfd1 --ny {ny} --t-end {t_rigid}` first (needs {src})"
+            f"run `turek_hron.py cfd1 --ny {ny} --t-end {t_rigid} --compression {COMPRESSION}`"
+            f" first (needs {src})"
         )
     z = np.load(src)
     if abs(float(z["t"]) - t_rigid) > 1e-9:
@@ -699,7 +706,7 @@ def run_fsi1(
         xi=jnp.asarray(z["xi"]),
         phi=jnp.asarray(z["phi"]),
     )
-    tag = f"fsi1_ny{ny}_r{rho_scale:g}" + ("" if COMPRESSION == "centred" else f"_{COMPRESSION}")
+    tag = f"fsi1_ny{ny}_r{rho_scale:g}{_compression_suffix()}"
     f, w = _writer(out / f"{tag}.csv", HEADER)
     t0 = time.time()
     state, rows, steps = run_channel(model, params, state, t_end, chunk, tag, out, writer=w)

@@ -145,7 +145,7 @@ class Case:
         condition (the same cavity stays at |v| = 0.67 without bulk viscosity), so there is
         nothing to warn about.
         """
-        if getattr(self.numerics, "compression", "centred") != "centred":
+        if self.numerics.compression != "centred":
             return
         fl = self.fluid
         try:

@@ -326,12 +326,13 @@ class Model:
         p = fl.lambda_f * (rp1[:-1, :-1] / fl.rho0 - 1.0)
         ux, uy = grad_corner(vp1[0], dx, dy)
         vx, vy = grad_corner(vp1[1], dx, dy)
-        bulk = fl.bulk_viscosity * (ux + vy)
+        div_corner = ux + vy  # corner divergence of v (bottom-left triangle)
+        bulk = fl.bulk_viscosity * div_corner
         sxx_f = -p + fl.eta * ux + bulk
         sxy_f = 0.5 * fl.eta * (uy + vx)
         syy_f = -p + fl.eta * vy + bulk
 
-        out = dict(p_corner=p)
+        out = dict(p_corner=p, div_corner=div_corner)
         N = self.n_solids
         if N == 0:
             out.update(sxx=sxx_f, sxy=sxy_f, syy=syy_f, rho=state.rho_f,
@@ -400,17 +401,14 @@ class Model:
         # stick's anchor -- grows rho_f exponentially inside the solid, where no fluid
         # pressure pushes back: the thesis's stick at 128^2 blew up at t ~ 9.)
         if n.compression == "corner":
-            # forward divergence at each node's top-right corner: the negative transpose of
-            # the backward pressure gradient that div_node makes of the bottom-left-node
-            # corner pressure (see Numerics), with that corner's fluid fraction
-            vp1 = vp[:, 1:-1, 1:-1]
-            ux = grad_corner(vp1[0], dx, dy)[0][1:, 1:]
-            vy = grad_corner(vp1[1], dx, dy)[1][1:, 1:]
-            wf_tr = d["wf_c"][1:, 1:]
-            drho = advect(rp, v, dx, dy) - wf_tr * rho_f * (ux + vy)
+            # the divergence at each node's top-right corner (a forward difference): the
+            # negative transpose of the backward pressure gradient that div_node makes of
+            # the bottom-left-node corner pressure (see Numerics), with that corner's fluid
+            # fraction
+            compression = d["wf_c"][1:, 1:] * d["div_corner"][1:, 1:]
         else:
-            div_c = divergence_centered(vp[0], vp[1], dx, dy, g=2)
-            drho = advect(rp, v, dx, dy) - d["wf_n"] * rho_f * div_c
+            compression = d["wf_n"] * divergence_centered(vp[0], vp[1], dx, dy, g=2)
+        drho = advect(rp, v, dx, dy) - rho_f * compression
         v_new = v + dt * acc
         rho_new = rho_f + dt * drho
 

@@ -137,11 +137,11 @@ class Numerics:
       compression energy exactly (sound waves neither grow nor lose energy to the pairing).
       The price is a one-sided, first-order divergence: on smooth flows its errors are
       larger and its observed orders lower than the centred form's (docs/method.md).
-    * ``"centred"`` (default, the thesis's eq. 4.28): the centred divergence, weighted by the node's fluid
-      fraction.  Paired with the one-sided pressure gradient it feeds grid-scale sound
-      (it needs ``(eta + bulk_viscosity) / rho0 >~ c h / 2`` to stay stable) and lets a
-      one-node velocity jet in a thin fluid film between two bodies pump the film's density
-      without bound (docs/method.md).
+    * ``"centred"`` (default, the thesis's eq. 4.28): the centred divergence, weighted by
+      the node's fluid fraction.  Paired with the one-sided pressure gradient it feeds
+      grid-scale sound (it needs ``(eta + bulk_viscosity) / rho0 >~ c h / 2`` to stay
+      stable) and lets a one-node velocity jet in a thin fluid film between two bodies pump
+      the film's density without bound (docs/method.md).
     """
 
     blur_width: float = 2.0
