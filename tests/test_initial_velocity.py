@@ -430,3 +430,14 @@ def test_a_state_that_does_not_fit_the_case_is_refused(change, words):
         Simulation(case, None, progress=False, pictures=False, state=bad)
     for w in words:
         assert w in str(e.value), (w, str(e.value))
+
+
+def test_a_run_with_a_formula_resumes_from_its_checkpoint(tmp_path):
+    """The checkpoint stores the case file text, [initial_velocity] included, so
+    `refmap resume` rebuilds the same case (Case.to_dict() equal) and continues."""
+    out = tmp_path / "run"
+    Simulation(_shear_case(t_end=0.05, frames=1), out, progress=False, pictures=False).run()
+    sim = Simulation.resume(out, t_end=0.1, progress=False, pictures=False)
+    assert sim.case.initial_velocity == _shear_case().initial_velocity
+    end = sim.run()
+    assert float(end.t) == pytest.approx(0.1, abs=1e-12)
