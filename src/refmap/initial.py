@@ -416,6 +416,9 @@ class VelocityExpression(_Field):
     def to_dict(self) -> dict:
         return {"u": self.u, "v": self.v}
 
+    def __reduce__(self):  # pickled as its formulas (the parsed functions are closures)
+        return (VelocityExpression, (self.u, self.v))
+
     def __eq__(self, other):
         return isinstance(other, VelocityExpression) and (other.u, other.v) == (self.u, self.v)
 
