@@ -456,3 +456,14 @@ def test_fields_pickle_and_copy(tmp_path):
         for back in (pickle.loads(pickle.dumps(case)), copy.deepcopy(case)):
             assert back == case
             assert np.array_equal(back.initial_velocity_field(), case.initial_velocity_field())
+
+
+def test_model_checks_the_node_values_it_is_given():
+    from refmap.model import Model
+
+    with pytest.raises(ValueError, match=r"node shape \(2, 8, 8\), got \(2, 8, 9\)"):
+        Model(Grid(8, 8), initial_velocity=np.zeros((2, 8, 9)))
+    v0 = np.zeros((2, 8, 8))
+    v0[1, 2, 3] = np.inf
+    with pytest.raises(ValueError, match="1 non-finite"):
+        Model(Grid(8, 8), initial_velocity=v0)

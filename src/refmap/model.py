@@ -139,11 +139,11 @@ class Model:
         self.h = grid.h
         if initial_velocity is not None:  # node values (2, nx, ny), see initial_state
             v0 = np.asarray(initial_velocity, dtype=np.float64)
-            if v0.shape != (2,) + grid.shape() or not np.all(np.isfinite(v0)):
-                raise ValueError(
-                    f"initial_velocity must be finite node values of shape {(2,) + grid.shape()}, "
-                    f"got shape {v0.shape}"
-                )
+            if v0.shape != (2,) + grid.shape():
+                raise ValueError(f"initial_velocity must have the node shape {(2,) + grid.shape()}, "
+                                 f"got {v0.shape}")
+            if not np.all(np.isfinite(v0)):
+                raise ValueError(f"initial_velocity has {int((~np.isfinite(v0)).sum())} non-finite values")
             initial_velocity = v0
         self.initial_velocity = initial_velocity
         X, Y = grid.mesh("node")
@@ -230,8 +230,8 @@ class Model:
 
     # ------------------------------------------------------------------ initial state
     def initial_state(self, params: Params, redistance_iters: int = 40) -> State:
-        """The state at t = 0: the solids' initial maps and level sets, the fluid at rest
-        density ``rho0``, and the velocity
+        """The state at t = 0: the solids' initial maps and level sets, the fluid density
+        uniform at ``rho0``, and the velocity
 
             v(x, 0) = v0(x) + sum_k (1 - H_k(x)) V_k,
 
@@ -242,8 +242,8 @@ class Model:
         impulsively started body whose velocity jump is spread over the blur zone:
         (1 - H) V = erfc(phi / (w h)) V / 2 is 0.92 V at phi = -w h inside, V / 2 on the zero
         level set, 0.079 V at phi = w h and 0.002 V at phi = 2 w h outside (w = blur_width,
-        2 by default); the fluid farther out is at rest and is set moving
-        by viscosity and by the pressure waves the body sends out.  A field ``v0`` moves the
+        2 by default); the fluid farther out is at rest and is set moving by viscosity and
+        by the pressure waves the body sends out.  A field ``v0`` moves the
         fluid and the solids together (a rotating body with the fluid around it, a uniform
         stream, a vibration mode); it is taken as given, so a field that is not
         divergence-free (or a body's rigid rotation next to resting fluid) also starts
