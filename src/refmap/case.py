@@ -43,8 +43,21 @@ class Case:
     #: contact between the solids and against the walls: a :class:`refmap.contact.Contact`
     #: (passed to the model as a body force), or None for no contact
     contact: Any = None
+    #: the velocity at t = 0 on every node, fluid and solids alike: None (at rest), a
+    #: callable ``f(x, y) -> (u, v)`` on the node coordinate arrays, an array of shape
+    #: ``(2, nx, ny)``, or a :mod:`refmap.initial` field (a formula or a file).  Each
+    #: ``Solid.velocity`` is added to it, weighted by the solid's fraction (see
+    #: :meth:`refmap.model.Model.initial_state`).  Stored as a :mod:`refmap.initial` field.
+    initial_velocity: Any = None
 
     def __post_init__(self):
+        from refmap.initial import InitialVelocityError, as_initial_velocity
+
+        try:
+            object.__setattr__(self, "initial_velocity", as_initial_velocity(self.initial_velocity))
+        except InitialVelocityError as e:
+            key = f"initial_velocity.{e.key}" if e.key else "initial_velocity"
+            raise CaseError(f"case {self.name!r}: {key}: {e.msg}") from None
         # checked at construction (and on every replace), before anything is compiled
         if self.contact is not None:
             from refmap.contact import Contact
@@ -131,7 +144,22 @@ class Case:
             _ = h
         if not covered.all():  # a box filled with solid has no fluid to damp
             self._check_sound_damping()
+        self.initial_velocity_field()
         return self
+
+    def initial_velocity_field(self):
+        """The ``(2, nx, ny)`` node values of :attr:`initial_velocity` (None when it is
+        None), checked: shape against the grid, finite values; a callable that raises or
+        returns something else is a :class:`CaseError` naming it."""
+        from refmap.initial import InitialVelocityError
+
+        if self.initial_velocity is None:
+            return None
+        try:
+            return self.initial_velocity.sample(self.grid)
+        except InitialVelocityError as e:
+            key = f"initial_velocity.{e.key}" if e.key else "initial_velocity"
+            raise CaseError(f"case {self.name!r}: {key}: {e.msg}") from None
 
     def _check_sound_damping(self):
         """Warn when sound in the fluid is too little damped for this grid.
@@ -183,6 +211,8 @@ class Case:
             "frames": self.frames,
             "picture_field": self.picture_field,
             **({} if self.contact is None else {"contact": self.contact.to_dict()}),
+            **({} if self.initial_velocity is None
+               else {"initial_velocity": self.initial_velocity.to_dict()}),
             "solids": [
                 {
                     "name": s.name,
@@ -205,7 +235,8 @@ class Case:
 
         self.validate()
         forces = () if self.contact is None else (self.contact,)
-        model = Model(self.grid, self.solids, self.boundary, self.numerics, body_forces=forces)
+        model = Model(self.grid, self.solids, self.boundary, self.numerics, body_forces=forces,
+                      initial_velocity=self.initial_velocity_field())
         params = Params(fluid=self.fluid, laws=tuple(s.law for s in self.solids),
                         gravity=tuple(float(x) for x in self.gravity))
         return model, params

@@ -12,6 +12,7 @@ A case file mirrors :class:`refmap.case.Case`::
     [boundary]  left / right / bottom / top: "wall" | "slip" | "outflow" | "periodic"
                 or a list of segment tables {kind, start, end, velocity, profile, ramp, omega}
     [contact]   optional: the contact body force of refmap.contact.Contact
+    [initial_velocity]  optional: u, v (formulas in x, y) or file (.npy / .h5, (2, nx, ny))
     [[solids]]  name, shape (a geometry table, CSG nested), law (a material table),
                 strain, strain_center, velocity, anchor (region or pivot)
 
@@ -69,6 +70,12 @@ from refmap.case import Case, CaseError
 from refmap.contact import Contact
 from refmap.geometry import SHAPES, Shape
 from refmap.grid import Grid
+from refmap.initial import (
+    InitialVelocityError,
+    VelocityExpression,
+    VelocityFile,
+    as_initial_velocity,
+)
 from refmap.materials import LAWS, law_from_dict
 from refmap.model import Solid
 from refmap.state import FluidParams, Numerics
@@ -78,6 +85,7 @@ __all__ = [
     "CaseFileError",
     "build_anchor",
     "build_law",
+    "build_initial_velocity",
     "build_shape",
     "RunPlan",
     "case_from_dict",
@@ -830,6 +838,49 @@ class SolidSpec(_Table):
         return self
 
 
+def build_initial_velocity(d: Any, base_dir: str | os.PathLike | None = None):
+    """The ``[initial_velocity]`` table: ``{u = FORMULA, v = FORMULA}`` (a left-out
+    component is 0) or ``{file = PATH, dataset = NAME}`` (``.npy`` or ``.h5``, relative to
+    the case file).  Raises ``_PathError`` naming the key inside the table."""
+    if d is None:
+        return None
+    if not isinstance(d, Mapping):
+        raise _PathError(
+            (),
+            'must be a table: {u = "FORMULA", v = "FORMULA"} or {file = "v0.npy"} '
+            f"(got {_fmt_value(d)})",
+        )
+    _check_keys(d, ("u", "v", "file", "dataset"))
+    formula = [k for k in ("u", "v") if k in d]
+    if "file" in d and formula:
+        raise _PathError(
+            (formula[0],), f"give either formulas u, v or a file, not both (got file = {_fmt_value(d['file'])})"
+        )
+    if "file" not in d and not formula:
+        if "dataset" in d:
+            raise _PathError((), "missing required key 'file' (dataset names a dataset in it)")
+        raise _PathError((), "needs u and/or v (formulas in x and y), or file")
+    for k in ("u", "v", "file", "dataset"):
+        if k in d and (isinstance(d[k], bool) or not isinstance(d[k], (str, int, float)) or (
+            k in ("file", "dataset") and not isinstance(d[k], str))):
+            what = "a formula in x and y (a string)" if k in ("u", "v") else "a string"
+            raise _PathError((k,), f"must be {what} (got {_fmt_value(d[k])})")
+    try:
+        if formula:
+            return VelocityExpression(d.get("u", "0"), d.get("v", "0"))
+        f = d["file"]
+        if base_dir is not None:
+            f = str(Path(base_dir, f))  # relative to the case file
+        return VelocityFile(f, d.get("dataset"))
+    except InitialVelocityError as e:
+        key = e.key or ("file" if "file" in d else "")
+        raise _PathError((key,) if key else (), e.msg) from None
+
+
+def _initial_velocity_validator(cls, v, info: ValidationInfo):
+    return build_initial_velocity(v, _base_dir(info))
+
+
 def _case_spec_model():
     fields = dict(
         name=(Str | None, None),
@@ -844,7 +895,13 @@ def _case_spec_model():
         solids=(list[SolidSpec], []),
     )
     fields["contact"] = (ContactSpec | None, None)
-    return create_model("CaseSpec", __base__=_Table, **fields)
+    fields["initial_velocity"] = (Any, None)
+    validators = {
+        "_initial_velocity": field_validator("initial_velocity", mode="before")(
+            classmethod(_initial_velocity_validator)
+        )
+    }
+    return create_model("CaseSpec", __base__=_Table, __validators__=validators, **fields)
 
 
 CaseSpec = _case_spec_model()
@@ -1274,6 +1331,7 @@ def _assemble(spec) -> Case:
         frames=t.frames,
         picture_field=o.picture_field,
         description=spec.description,
+        initial_velocity=getattr(spec, "initial_velocity", None),
     )
     contact = getattr(spec, "contact", None)
     if contact is None:
@@ -1375,6 +1433,11 @@ def _check_geometry(case: Case) -> None:
                     f"covers no grid node of the domain {dom} (h = {g.h:.3g})",
                 )
         insides.append(inside)
+    if case.initial_velocity is not None:  # shape against the grid, finite values
+        try:
+            case.initial_velocity.sample(g)
+        except InitialVelocityError as e:
+            raise _PathError(("initial_velocity",) + ((e.key,) if e.key else ()), e.msg) from None
     for j in range(len(insides)):
         for k in range(j + 1, len(insides)):
             both = insides[j] & insides[k]
@@ -1591,6 +1654,26 @@ def _case_doc(case: Case, base_dir=None) -> dict:
     doc["boundary"] = {name: _edge_doc(getattr(case.boundary, name)) for name in EDGES}
     if case.contact is not None:
         doc["contact"] = case.contact.to_dict()
+    iv = as_initial_velocity(case.initial_velocity)
+    if isinstance(iv, VelocityExpression):
+        doc["initial_velocity"] = {"u": iv.u, "v": iv.v}
+    elif isinstance(iv, VelocityFile):
+        f = iv.file
+        if base_dir is not None:
+            try:
+                f = os.path.relpath(f, Path(base_dir).resolve())
+            except ValueError:  # other drive (Windows)
+                pass
+        doc["initial_velocity"] = {"file": f}
+        if iv.dataset is not None:
+            doc["initial_velocity"]["dataset"] = iv.dataset
+    elif iv is not None:
+        raise CaseFileError(
+            f"initial_velocity: cannot be written to a case file: {iv!r} is not a formula or a "
+            "file; save its node values with numpy.save and give "
+            '[initial_velocity] file = "v0.npy"',
+            "initial_velocity",
+        )
     solids = []
     for k, s in enumerate(case.solids):
         try:
@@ -1639,6 +1722,8 @@ _COMMENTS = {
     ("boundary",): 'each edge: "wall", "slip", "outflow", "periodic", or a list of segments\n'
     "{kind, start, end, velocity, profile, ramp, omega} tiling [0, 1] from the edge's low end",
     ("contact",): "repulsive contact force between solids and against the walls (refmap.contact)",
+    ("initial_velocity",): "velocity at t = 0 of fluid and solids: formulas u, v in x and y, or a"
+    " file (2, nx, ny);\neach solid's velocity is added inside it",
     ("solids",): "a solid: shape in reference coordinates, material law, initial map\n"
     "xi = strain (x - strain_center) + strain_center, initial velocity, optional anchor",
 }

@@ -128,6 +128,7 @@ class Model:
         boundary: Boundary | None = None,
         numerics: Numerics | None = None,
         body_forces: tuple = (),
+        initial_velocity=None,
     ):
         self.grid = grid
         self.solids = tuple(solids)
@@ -136,6 +137,15 @@ class Model:
         self.body_forces = tuple(body_forces)
         self.bc = BoundaryConditions(grid, self.boundary)
         self.h = grid.h
+        if initial_velocity is not None:  # node values (2, nx, ny), see initial_state
+            v0 = np.asarray(initial_velocity, dtype=np.float64)
+            if v0.shape != (2,) + grid.shape():
+                raise ValueError(f"initial_velocity must have the node shape {(2,) + grid.shape()}, "
+                                 f"got {v0.shape}")
+            if not np.all(np.isfinite(v0)):
+                raise ValueError(f"initial_velocity has {int((~np.isfinite(v0)).sum())} non-finite values")
+            initial_velocity = v0
+        self.initial_velocity = initial_velocity
         X, Y = grid.mesh("node")
         self._xi0 = np.stack(
             [np.stack(s.initial_map(X, Y)) for s in self.solids]
@@ -220,6 +230,25 @@ class Model:
 
     # ------------------------------------------------------------------ initial state
     def initial_state(self, params: Params, redistance_iters: int = 40) -> State:
+        """The state at t = 0: the solids' initial maps and level sets, the fluid density
+        uniform at ``rho0``, and the velocity
+
+            v(x, 0) = v0(x) + sum_k (1 - H_k(x)) V_k,
+
+        with ``v0`` the model's ``initial_velocity`` (zero when None) and ``V_k`` solid k's
+        uniform ``Solid.velocity``, weighted by its solid fraction (see
+        :func:`solid_fractions`).  ``V_k`` is thus the solid's velocity relative to the
+        field.  Without a field the fluid starts at rest: a solid given a velocity is an
+        impulsively started body whose velocity jump is spread over the blur zone:
+        (1 - H) V = erfc(phi / (w h)) V / 2 is 0.92 V at phi = -w h inside, V / 2 on the zero
+        level set, 0.079 V at phi = w h and 0.002 V at phi = 2 w h outside (w = blur_width,
+        2 by default); the fluid farther out is at rest and is set moving by viscosity and
+        by the pressure waves the body sends out.  A field ``v0`` moves the
+        fluid and the solids together (a rotating body with the fluid around it, a uniform
+        stream, a vibration mode); it is taken as given, so a field that is not
+        divergence-free (or a body's rigid rotation next to resting fluid) also starts
+        sound waves, as the fluid density starts uniform.
+        """
         g = self.grid
         nx, ny = g.shape()
         xi = jnp.asarray(self._xi0)
@@ -229,7 +258,7 @@ class Model:
             phi_k = levelset.redistance(psi, g.dx, g.dy, redistance_iters, periodic=self.bc.periodic)
             phis.append(jnp.clip(phi_k, -self.numerics.phi_max * self.h, self.numerics.phi_max * self.h))
         phi = jnp.stack(phis) if phis else jnp.zeros((0, nx, ny))
-        v = jnp.zeros((2, nx, ny))
+        v = jnp.zeros((2, nx, ny)) if self.initial_velocity is None else jnp.asarray(self.initial_velocity)
         if self.n_solids:
             H = 0.5 * (1 + erf(phi / (self.numerics.blur_width * self.h)))
             ws, _ = solid_fractions(H)

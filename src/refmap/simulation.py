@@ -8,6 +8,7 @@ step, time and field, and the frames already written stay readable.
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import subprocess
@@ -85,11 +86,19 @@ class Simulation:
     ``checkpoint.h5`` into the run folder (see :mod:`refmap.checkpoint`); a run stopped by
     Ctrl-C checkpoints its last completed frame.  :meth:`resume` continues a run folder from
     its checkpoint, bit for bit as if it had never stopped.
+
+    ``state`` (a :class:`~refmap.state.State`) starts the run from that state instead of
+    ``model.initial_state``: a state made by hand (``model.initial_state(params)`` with a
+    changed ``v``), the end of another run (``Simulation.state``) or a checkpoint
+    (``refmap.checkpoint.load_checkpoint``).  It must fit the case (grid shape, number of
+    solids; finite values, a positive density) and lie before ``case.t_end``; frame 0 is that
+    state at its own time t0 and the ``case.frames`` further frames are spread evenly over
+    (t0, t_end].  ``case.initial_velocity`` is not used then (a warning says so).
     """
 
     def __init__(self, case: Case, out_dir=None, progress: bool = True, pictures: bool = True,
                  movie: bool = False, overwrite: bool = False, command: str | None = None,
-                 checkpoint_every: int | None = 1):
+                 checkpoint_every: int | None = 1, state=None):
         if checkpoint_every is not None and (isinstance(checkpoint_every, bool)
                                              or not isinstance(checkpoint_every, int)
                                              or checkpoint_every < 1):
@@ -119,6 +128,7 @@ class Simulation:
         self._array_dims = model.frame_array_dims()
         self.state = None
         self.rows: list[dict] = []
+        self.start_state = None if state is None else _check_start_state(state, self.case, model)
 
     def _write(self, writer, index, state, info, wall):
         fields, diag, arrays = jax.device_get(self._outputs(state, self.params))
@@ -146,15 +156,19 @@ class Simulation:
             from refmap.io import RunWriter
 
             meta = {"case": case.to_dict(), "versions": versions(), "command": self.command}
+            if self.start_state is not None:
+                meta["start"] = {"t": float(self.start_state.t), "step": int(self.start_state.step)}
             writer = RunWriter(self.out_dir, case.grid, meta, overwrite=self.overwrite)
         elif self.out_dir is not None:
             writer = self._reopen_for_resume(resumed)
         if resumed is None:
-            state = self.model.initial_state(self.params)
+            state = self.start_state
+            if state is None:
+                state = self.model.initial_state(self.params)
             t0 = _time.perf_counter()
-            info0 = {"step": 0, "dt": 0.0, "limit": 0, "steps_in_frame": 0}
+            info0 = {"step": int(state.step), "dt": 0.0, "limit": 0, "steps_in_frame": 0}
             self._write(writer, 0, state, info0, 0.0)
-            times = np.linspace(0.0, case.t_end, case.frames + 1)[1:]
+            times = np.linspace(float(state.t), case.t_end, case.frames + 1)[1:]
             first, total_steps = 1, 0
             self._dt_stats = (float("inf"), 0.0)
             self._diag_rows_base = -len(self.rows) + 1
@@ -177,7 +191,7 @@ class Simulation:
 
             bar = tqdm(total=float(case.t_end), unit="t", desc=f"{case.name} {case.grid.nx}x{case.grid.ny}",
                        bar_format="{l_bar}{bar}| t={n:.3f}/{total:.3f} [{elapsed}<{remaining}{postfix}]",
-                       initial=float(state.t) if resumed is not None else 0)
+                       initial=float(state.t))
         try:
             for i, tf in enumerate(times, start=1):
                 if i < first:
@@ -403,6 +417,65 @@ class Simulation:
             json.dump({"steps": self.total_steps, "wall_time_s": self.wall_time,
                        "steps_per_s": self.total_steps / max(self.wall_time, 1e-9),
                        "final_time": float(self.state.t)}, f, indent=2)
+
+
+def _check_start_state(state, case: Case, model):
+    """``state`` as a float64/int64 State that fits ``case``, else CaseError naming the
+    field and its value (before anything is compiled)."""
+    import warnings
+
+    import jax.numpy as jnp
+
+    from refmap.case import CaseError
+    from refmap.state import State
+
+    def bad(msg):
+        raise CaseError(f"case {case.name!r}: start state: {msg}")
+
+    if not isinstance(state, State):
+        bad(f"must be a refmap.state.State, got {type(state).__name__}")
+    g = case.grid
+    n = model.n_solids
+    want = {"v": (2, g.nx, g.ny), "rho_f": (g.nx, g.ny), "xi": (n, 2, g.nx, g.ny),
+            "phi": (n, g.nx, g.ny)}
+    arrays = {}
+    for name, shape in want.items():
+        try:
+            a = np.asarray(getattr(state, name))
+        except Exception as e:  # noqa: BLE001 - anything unreadable is a bad value
+            bad(f"{name} cannot be read as an array ({type(e).__name__}: {e})")
+        if a.dtype.kind not in "iuf":
+            bad(f"{name} must hold real numbers, got dtype {a.dtype}")
+        if a.shape != shape:
+            what = (f" ({a.shape[0]} solid(s) in the state, {n} in the case)"
+                    if name in ("xi", "phi") and a.ndim >= 1 and a.shape[0] != n else "")
+            bad(f"{name} has shape {a.shape}, the case needs {shape} (grid {g.nx} x {g.ny}, "
+                f"{n} solid(s)){what}")
+        if not np.all(np.isfinite(a)):
+            idx = tuple(int(k[0]) for k in np.nonzero(~np.isfinite(a)))
+            bad(f"{name} is not finite at {int((~np.isfinite(a)).sum())} value(s), the first "
+                f"at index {list(idx)}: {float(a[idx])!r}")
+        arrays[name] = a
+    if not np.all(arrays["rho_f"] > 0):
+        idx = tuple(int(k[0]) for k in np.nonzero(~(arrays["rho_f"] > 0)))
+        bad(f"rho_f must be > 0, got {float(arrays['rho_f'][idx])!r} at node {list(idx)}")
+    try:
+        t = float(np.asarray(state.t))
+        step = np.asarray(state.step)
+    except Exception as e:  # noqa: BLE001
+        bad(f"t and step must be numbers ({type(e).__name__}: {e})")
+    if step.shape != () or step.dtype.kind not in "iu" or int(step) < 0:
+        bad(f"step must be an integer >= 0, got {state.step!r}")
+    if not (math.isfinite(t) and t >= 0):
+        bad(f"t must be a finite number >= 0, got {t!r}")
+    if not t < case.t_end:
+        bad(f"t = {t:.6g} is not before case.t_end = {case.t_end:.6g}; raise t_end")
+    if case.initial_velocity is not None:
+        warnings.warn(f"case {case.name!r}: the run starts from the given state, so "
+                      f"case.initial_velocity ({case.initial_velocity!r}) is not used",
+                      UserWarning, stacklevel=3)
+    return State(t=jnp.asarray(t, dtype=jnp.float64), step=jnp.asarray(int(step), dtype=jnp.int64),
+                 **{k: jnp.asarray(a, dtype=jnp.float64) for k, a in arrays.items()})
 
 
 def run_scenario(name: str, n: int = 128, t_end: float | None = None, frames: int | None = None,
