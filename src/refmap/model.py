@@ -6,7 +6,8 @@ edge conditions, numerics); :meth:`Model.step` is a pure function
 ``lax.while_loop`` up to a target time.  One step:
 
 1. ENO advection of every reference map (inside each solid and its band);
-2. blend weights H_k = (1 + erf(phi_k / (w h))) / 2 on nodes and corners;
+2. blend weights H_k = H(phi_k) on nodes and corners (:mod:`refmap.blend`: the thesis's
+   (1 + erf(phi_k / (w h))) / 2 by default);
 3. solid stress sigma_k = law_k(F), F = (grad xi_k)^-1, at corners where xi_k is defined;
 4. fluid pressure lambda_f (rho_f / rho0 - 1) everywhere;
 5. fluid viscous stress; mixing sigma = w_f sigma_f + sum_k (1 - H_k) sigma_k and likewise
@@ -27,9 +28,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import erf
 
-from refmap import extrapolation, levelset
+from refmap import blend, extrapolation, levelset
 from refmap.boundary import Boundary, BoundaryConditions
 from refmap.grid import Grid
 from refmap.operators import (
@@ -260,7 +260,7 @@ class Model:
         phi = jnp.stack(phis) if phis else jnp.zeros((0, nx, ny))
         v = jnp.zeros((2, nx, ny)) if self.initial_velocity is None else jnp.asarray(self.initial_velocity)
         if self.n_solids:
-            H = 0.5 * (1 + erf(phi / (self.numerics.blur_width * self.h)))
+            H = blend.heaviside(phi, self.numerics.blend, self.numerics.blur_width * self.h)
             ws, _ = solid_fractions(H)
             for k, s in enumerate(self.solids):
                 v = v + ws[k][None] * jnp.asarray(s.velocity)[:, None, None]
@@ -371,8 +371,8 @@ class Model:
         phip = bc.pad_linear(state.phi)[..., 1:-1, 1:-1]
         phic = corner_average(phip)
         w = n.blur_width * h
-        Hc = 0.5 * (1 + erf(phic / w))
-        Hn = 0.5 * (1 + erf(state.phi / w))
+        Hc = blend.heaviside(phic, n.blend, w)
+        Hn = blend.heaviside(state.phi, n.blend, w)
         ws_c, wf_c = solid_fractions(Hc)
         ws_n, wf_n = solid_fractions(Hn)
 

@@ -126,6 +126,12 @@ class Numerics:
     the adaptive time step; ``dt_fixed`` replaces it by a constant (convergence studies,
     differentiable runs), ``dt_max`` caps it.
 
+    ``blend`` picks the blend kernel H(phi) (:mod:`refmap.blend`): ``"erf"`` (the thesis's,
+    ``H = (1 + erf(phi / (blur_width h))) / 2``) or ``"sine"`` (the compactly supported
+    sine-smoothed Heaviside of half-width ``blur_width h``).  A plate t thick is stiffened in
+    bending by ``1 + C (h / t)^2`` with ``C = 6 blur_width^2`` (erf) or
+    ``1.568 blur_width^2`` (sine); see :func:`refmap.blend.bending_factor`.
+
     ``compression`` picks the velocity divergence in the fluid-density update
     ``d rho_f / dt = -v . grad rho_f - w_f rho_f div v``:
 
@@ -145,6 +151,7 @@ class Numerics:
     """
 
     blur_width: float = 2.0
+    blend: str = "erf"
     band: float = 6.0
     stress_band: float = 5.0
     pin_rate: float = 5.0
@@ -163,6 +170,8 @@ class Numerics:
     compression: str = "centred"
 
     def __post_init__(self):
+        if self.blend not in ("erf", "sine"):
+            raise ValueError(f"numerics blend must be 'erf' or 'sine', got {self.blend!r}")
         if self.compression not in ("corner", "centred"):
             raise ValueError(
                 f"numerics compression must be 'corner' or 'centred', got {self.compression!r}"
