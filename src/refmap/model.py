@@ -160,22 +160,61 @@ class Model:
     def n_solids(self) -> int:
         return len(self.solids)
 
-    def phi0(self, k: int, xi_k):
+    def _images(self, xi_k):
+        """The periodic images of reference points ``xi_k`` (2, ...) that phi0 examines.
+
+        On a periodic axis a body that crossed an edge carries a map that jumps by the period
+        there (``xi - x`` is what stays continuous, see ``BoundaryConditions.pad_affine``),
+        so the material at a node may hold ``xi = Xi - m L`` for its true reference point Xi
+        and any integer m (one per crossing, either way; m grows without bound for a body
+        that keeps travelling).  Each periodic component is first reduced into the box's
+        window [a, b), then shifted by -L, 0 and +L; with both axes periodic that is all
+        nine combinations, so a body straddling a corner of the box (its map shifted along
+        both axes at once at the diagonally opposite corner) is recognised too.  This finds
+        every reference point of a shape that lies within one period of the box.
+
+        Returns a list of ``(X, Y, sx, sy)``: the image and its shift from ``xi_k`` (a whole
+        number of periods per axis), ``X = xi_k[0] + sx``, ``Y = xi_k[1] + sy``.
+        """
+        g = self.grid
+        out = []
+        per_axis = []
+        for c, (a, b, periodic) in enumerate(((g.ax, g.bx, self.bc.periodic[0]), (g.ay, g.by, self.bc.periodic[1]))):
+            x = xi_k[c]
+            if not periodic:
+                per_axis.append([(x, jnp.zeros_like(x))])
+                continue
+            L = b - a
+            base = a + jnp.mod(x - a, L) - x  # a whole number of periods (to round-off)
+            per_axis.append([(x + base + m * L, base + m * L) for m in (0, -1, 1)])
+        for X, sx in per_axis[0]:
+            for Y, sy in per_axis[1]:
+                out.append((X, Y, sx, sy))
+        return out
+
+    def phi0(self, k: int, xi_k, return_shift: bool = False):
         """phi0_k(xi_k): where solid k's material says its boundary is (thesis eq. 4.27).
 
-        On periodic axes the reference shape is repeated with the period, so a body that
-        crossed an edge (its map jumps by the period there) is still recognised.
+        On periodic axes the reference shape is repeated with the period: the minimum over
+        the images of :meth:`_images` (shifts along x, along y and along both), so a body
+        that crossed an edge or a corner, any number of times, is still recognised.  With
+        ``return_shift`` also the shift (2, ...) of the image that gave the minimum, i.e.
+        ``xi_k + shift`` is the material's reference point within the reference shape's
+        own image (used to unwrap the positions of a body cut by a periodic edge).
         """
         shape = self.solids[k].shape
-        X, Y = xi_k[0], xi_k[1]
-        out = shape(X, Y)
-        g = self.grid
-        Lx, Ly = g.bx - g.ax, g.by - g.ay
-        px, py = self.bc.periodic
-        for sx in ((-1, 1) if px else ()):
-            out = jnp.minimum(out, shape(X + sx * Lx, Y))
-        for sy in ((-1, 1) if py else ()):
-            out = jnp.minimum(out, shape(X, Y + sy * Ly))
+        out = sx_best = sy_best = None
+        for X, Y, sx, sy in self._images(xi_k):
+            val = shape(X, Y)
+            if out is None:
+                out, sx_best, sy_best = val, sx, sy
+                continue
+            better = val < out
+            out = jnp.where(better, val, out)
+            sx_best = jnp.where(better, sx, sx_best)
+            sy_best = jnp.where(better, sy, sy_best)
+        if return_shift:
+            return out, jnp.stack([sx_best, sy_best])
         return out
 
     def extrapolate(self, xi, phi):
@@ -515,6 +554,32 @@ class Model:
         return s
 
     # ------------------------------------------------------------------ diagnostics
+    def _centroid(self, k, xi_k, ws):
+        """Centroid of solid k, weighted by its node fractions ``ws``, on a periodic domain.
+
+        A body cut by a periodic edge lies partly at each side of the box, and the plain mean
+        of the node coordinates falls between its pieces.  Each node's position is unwrapped
+        with its material instead: the node holds ``xi = Xi - shift`` with ``Xi`` in the
+        reference shape (:meth:`phi0` finds the shift, a whole number of periods), and
+        ``x + shift`` is where that material lies in the frame where the body is in one
+        piece (``xi - x``, the displacement, has no jump).  The weighted mean of the
+        unwrapped positions is reduced back into the box.  Exact for any shape, any number
+        of crossings (a circular mean of the coordinates would be exact only for bodies
+        symmetric about their centroid); on non-periodic axes it is the plain weighted mean.
+        Valid while the body is smaller than the box.
+        """
+        g = self.grid
+        X, Y = (jnp.asarray(a) for a in g.mesh("node"))
+        _, shift = self.phi0(k, xi_k, return_shift=True)
+        total = jnp.sum(ws)
+        out = []
+        for c, (x, a, b) in enumerate(((X, g.ax, g.bx), (Y, g.ay, g.by))):
+            mean = jnp.sum(ws * (x + shift[c])) / total
+            if self.bc.periodic[c]:
+                mean = a + jnp.mod(mean - a, b - a)
+            out.append(mean)
+        return out[0], out[1]
+
     def diagnostics(self, state: State, params: Params):
         """Scalar diagnostics and per-solid numbers at the current state (jit-able)."""
         g = self.grid
@@ -533,18 +598,18 @@ class Model:
             Jk = d["J"]
             e_el = 0.0
             per = []
-            X, Y = g.mesh("node")
             for k, law in enumerate(params.laws):
                 psi = jax.vmap(jax.vmap(law.psi))(d["F"][k])
                 e_k = jnp.sum(jnp.where(d["valid"][k], d["ws_c"][k] * psi / Jk[k], 0.0)) * dA
                 e_el = e_el + e_k
                 ws = d["ws_n"][k]
                 area = jnp.sum(ws) * dA
+                cx, cy = self._centroid(k, state.xi[k], ws)
                 per.append(
                     dict(
                         area=area,
-                        centroid_x=jnp.sum(ws * X) * dA / area,
-                        centroid_y=jnp.sum(ws * Y) * dA / area,
+                        centroid_x=cx,
+                        centroid_y=cy,
                         velocity_x=jnp.sum(ws * v[0]) / jnp.sum(ws),
                         velocity_y=jnp.sum(ws * v[1]) / jnp.sum(ws),
                         J_min=jnp.min(jnp.where(inside_c[k], Jk[k], jnp.inf)),
