@@ -145,7 +145,9 @@ def test_growth_stops_the_run_before_a_garbage_frame_is_written(tmp_path):
         sim.run()
     msg = str(e.value)
     assert "step" in msg and "t = " in msg
-    assert "energy" in msg or "fluid mass" in msg
+    # caught by the speed check inside the step loop (measured: |v| = 1.5e4 at step 85,
+    # t = 0.078, between the frames), else by the mass or energy check at a frame
+    assert "speed" in msg or "energy" in msg or "fluid mass" in msg
     assert "viscosity" in msg  # the cause: nothing damps the waves
     d = open_diagnostics(out)
     e0 = d["kinetic_energy"].iloc[0] + d["elastic_energy"].iloc[0]

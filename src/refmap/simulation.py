@@ -494,6 +494,8 @@ class Simulation:
             if nu < 0.5 * c * case.grid.h:
                 out.append("under-damped sound (see the CaseWarning: fluid.bulk_viscosity or "
                            "numerics.compression = 'corner')")
+        if out:  # a specific cause: lowering cfl or refining would not cure it
+            return out
         out.append(f"a time step too large (lower numerics.cfl, now {nm.cfl:g}; a finer grid also "
                    "shortens the step but does not cure a time-step instability: raise n, now "
                    f"{case.grid.nx}, only for a solid whose deformation is under-resolved)")
