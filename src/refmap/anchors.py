@@ -59,6 +59,24 @@ class RegionAnchor:
             d = np.asarray(self.region(X, Y))
         return (d < 0).astype(float)
 
+    def check(self, grid: Grid, inside) -> None:
+        """ValueError unless the region holds at least one grid node of the solid
+        (``inside``: the solid's nodes at t = 0); a region beside the solid would hold
+        nothing and the solid would float free without a word."""
+        held = self.mask(grid)
+        if not (held & np.asarray(inside)).any():
+            X, Y = grid.mesh("node")
+            where = (
+                f"it holds {int(held.sum())} grid nodes, none inside the solid"
+                if held.any()
+                else "it holds no grid node at all"
+            )
+            raise ValueError(
+                f"anchor region {self.region!r} holds no node of the solid ({where}; the "
+                f"solid spans x in [{X[inside].min():.3g}, {X[inside].max():.3g}], y in "
+                f"[{Y[inside].min():.3g}, {Y[inside].max():.3g}], h = {grid.h:.3g})"
+            )
+
     def apply(self, grid: Grid, v, xi, xi0):
         w = jnp.asarray(self.weight(grid))
         v = (1.0 - w) * v

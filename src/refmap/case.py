@@ -86,6 +86,9 @@ class Case:
             bad(f"frames must be an integer >= 1, got {self.frames!r}")
         if len(self.gravity) != 2 or not all(math.isfinite(float(g)) for g in self.gravity):
             bad(f"gravity must be two finite numbers, got {self.gravity!r}")
+        from refmap.resources import check_memory
+
+        check_memory(self)  # before any grid-sized array is made
         g = self.grid
         X, Y = g.mesh("node")
         h = g.h
@@ -141,9 +144,17 @@ class Case:
                         )
             if inside.sum() < 4:
                 bad(f"{label}: only {int(inside.sum())} grid nodes inside; refine the grid (n={g.nx})")
+            check = getattr(s.anchor, "check", None)
+            if check is not None:
+                try:
+                    check(g, inside)
+                except ValueError as e:
+                    bad(f"{label}: {e}")
             _ = h
         if not covered.all():  # a box filled with solid has no fluid to damp
             self._check_sound_damping()
+            self._check_hydrostatic()
+        self._check_dt_fixed()
         self.initial_velocity_field()
         return self
 
@@ -160,6 +171,128 @@ class Case:
         except InitialVelocityError as e:
             key = f"initial_velocity.{e.key}" if e.key else "initial_velocity"
             raise CaseError(f"case {self.name!r}: {key}: {e.msg}") from None
+
+    def velocity_scales(self) -> dict[str, float]:
+        """The speeds this case can set up, by name: the fluid's sound speed, the fastest
+        solid wave, the fastest boundary velocity, the fastest initial solid velocity and
+        the free-fall speed sqrt(2 |g| L) over the domain.  The run's growth checks
+        (:mod:`refmap.simulation`) and the dt_fixed warning measure against them."""
+        fl = self.fluid
+        out = {"sound speed": math.sqrt(float(fl.lambda_f) / float(fl.rho0))}
+        waves = []
+        for s in self.solids:
+            try:
+                _, M = s.law.moduli()
+                waves.append(math.sqrt(float(M) / float(s.law.rho0)))
+            except (AttributeError, TypeError, ValueError):
+                pass
+        if waves:
+            out["solid wave speed"] = max(waves)
+        edge_speeds = [0.0]
+        for name in ("left", "right", "bottom", "top"):
+            e = getattr(self.boundary, name)
+            if isinstance(e, str):
+                continue
+            for seg in e:
+                edge_speeds.append(math.hypot(*seg.velocity))
+        if max(edge_speeds) > 0:
+            out["boundary speed"] = max(edge_speeds)
+        vs = [math.hypot(*s.velocity) for s in self.solids]
+        if vs and max(vs) > 0:
+            out["initial solid speed"] = max(vs)
+        if self.initial_velocity is not None:
+            try:
+                v0 = np.asarray(self.initial_velocity_field(), dtype=float)
+                vmax = float(np.sqrt(v0[0] ** 2 + v0[1] ** 2).max())
+            except (CaseError, TypeError, ValueError):
+                vmax = 0.0
+            if vmax > 0:
+                # a solid's own velocity adds to the field (Model.initial_state)
+                out["initial speed"] = vmax + (max(vs) if vs else 0.0)
+        gmag = math.hypot(*(float(x) for x in self.gravity))
+        if gmag > 0:
+            g = self.grid
+            out["free fall"] = math.sqrt(2.0 * gmag * max(g.bx - g.ax, g.by - g.ay))
+        return out
+
+    def _check_hydrostatic(self):
+        """Warn when gravity compresses the fluid by more than its stiffness can hold.
+
+        The fluid starts at uniform density; under gravity it settles towards hydrostatic
+        balance, dp/dy = -rho g with p = lambda_f (rho / rho0 - 1).  The settling flow
+        reaches speeds of about g L / c (c the sound speed, L the domain's height along g),
+        i.e. a Mach number M = rho0 |g| L / lambda_f, and the balanced density varies as
+        exp(M) from top to bottom.  Measured (a neutrally buoyant disc in the 4 x 4 box,
+        32^2): M = 0.1 moves it by 0.09 by t = 2, M = 0.4 by 0.28, M = 4 (g = 1 with the
+        default fluid) sinks it by 1.4 and loses 28 % of the fluid mass to the vacuum at
+        the top, M = 39 (g = 9.81) blows up at t = 0.85.  Above M = 1 the settling flow is
+        supersonic, which this scheme does not capture (see docs/method.md).
+        """
+        gx, gy = (float(x) for x in self.gravity)
+        gmag = math.hypot(gx, gy)
+        if gmag == 0:
+            return
+        fl = self.fluid
+        try:
+            rho0, lam = float(fl.rho0), float(fl.lambda_f)
+        except (TypeError, ValueError):
+            return
+        g = self.grid
+        L = (abs(gx) * (g.bx - g.ax) + abs(gy) * (g.by - g.ay)) / gmag  # height along g
+        mach = rho0 * gmag * L / lam
+        if mach <= 1.0:
+            return
+        warnings.warn(
+            f"case {self.name!r}: gravity compresses the fluid more than it can hold: "
+            f"rho0 |g| L / lambda_f = {mach:.3g} > 1 (rho0 = {rho0:g}, |g| = {gmag:g}, height "
+            f"L = {L:g}, lambda_f = {lam:g}); the fluid settles at about {mach:.2g} times its "
+            f"sound speed and its density varies by a factor exp({mach:.2g}) from top to "
+            f"bottom, so buoyancy is wrong and the run may blow up.  Raise fluid.lambda_f to "
+            f">= {10 * rho0 * gmag * L:.3g} (rho0 |g| L / lambda_f <= 0.1; mind the "
+            "sound-damping condition, or use numerics.compression = 'corner'), or lower the "
+            "gravity",
+            CaseWarning,
+            stacklevel=3,
+        )
+
+    def _check_dt_fixed(self):
+        """Warn when ``numerics.dt_fixed`` exceeds the adaptive step at t = 0.
+
+        The adaptive step (:meth:`refmap.model.Model.time_step`) is evaluated on the
+        case's parameters with the fastest initial speed the case sets up (boundary and
+        initial solid velocities); the step limits do not depend on anything else, so this
+        is the limit the first step would get without ``dt_fixed`` (cfl included)."""
+        dt = self.numerics.dt_fixed
+        if dt is None:
+            return
+        from types import SimpleNamespace
+
+        from refmap.model import LIMIT_NAMES, Model
+        from refmap.state import Params
+
+        sc = self.velocity_scales()
+        v0 = max(sc.get("boundary speed", 0.0), sc.get("initial solid speed", 0.0),
+                 sc.get("initial speed", 0.0))
+        fake_model = SimpleNamespace(h=self.grid.h, numerics=replace(self.numerics, dt_fixed=None,
+                                                                     dt_max=None))
+        fake_state = SimpleNamespace(v=np.full((2, 1, 1), v0 / 2.0))
+        params = Params(fluid=self.fluid, laws=tuple(s.law for s in self.solids),
+                        gravity=tuple(float(x) for x in self.gravity))
+        try:
+            lim, i = Model.time_step(fake_model, fake_state, params)
+            lim, name = float(lim), LIMIT_NAMES[int(i)]
+        except Exception:  # noqa: BLE001 - traced or unusual laws: nothing to check
+            return
+        if float(dt) <= lim:
+            return
+        warnings.warn(
+            f"case {self.name!r}: numerics.dt_fixed = {float(dt):g} is {float(dt) / lim:.3g} "
+            f"times the adaptive step at t = 0, {lim:.3g} (limited by {name}, cfl = "
+            f"{self.numerics.cfl:g}); the run will likely blow up.  Use dt_fixed <= {lim:.3g} "
+            "or leave it out (adaptive step)",
+            CaseWarning,
+            stacklevel=3,
+        )
 
     def _check_sound_damping(self):
         """Warn when sound in the fluid is too little damped for this grid.

@@ -1136,6 +1136,27 @@ def register_array_shape() -> None:
 # loading
 
 
+_RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+
+
+def check_run_name(name) -> str:
+    """``name`` if it can name a run folder (``runs/NAME_NX``), else :class:`CaseFileError`.
+
+    A case name becomes part of the default output path, so it must be one plain folder
+    name: letters, digits, ``.``, ``_`` and ``-``, starting with a letter or digit (no path
+    separators, no ``..``, not empty).  A name that is not is refused, not rewritten, so
+    the run lands where the user expects; ``--out`` (or ``output.out``) chooses any folder.
+    """
+    if not isinstance(name, str) or not _RUN_NAME.fullmatch(name):
+        raise CaseFileError(
+            f"name: {name!r} cannot name the run folder runs/NAME_N: use letters, digits, "
+            "'.', '_' and '-', starting with a letter or digit (no '/', no '..', not empty), "
+            "or choose the folder with --out",
+            "name",
+        )
+    return name
+
+
 @dataclasses.dataclass(frozen=True)
 class RunPlan:
     """A loaded case file: the Case and the ``[output]`` settings of the run."""
@@ -1262,6 +1283,15 @@ def case_from_dict(
         raise _context(e) from None
     try:
         case = _assemble(spec)
+    except _PathError as e:
+        raise _context(e) from None
+    from refmap.resources import check_memory
+
+    try:
+        check_memory(case)  # before the geometry check makes grid-sized arrays
+    except CaseError as e:
+        raise CaseFileError(f"grid: {e}", "grid") from None
+    try:
         _check_geometry(case)
     except _PathError as e:
         raise _context(e) from None
@@ -1275,6 +1305,8 @@ def case_from_dict(
     out = out_override
     if out is None and o.out is not None:
         out = Path(o.out) if base_dir is None else Path(base_dir, o.out)
+    if out is None:  # the run folder will be runs/NAME_NX: the name must be a plain one
+        check_run_name(case.name)
     return RunPlan(
         case=case,
         out=out,
@@ -1431,6 +1463,12 @@ def _check_geometry(case: Case) -> None:
                 raise _PathError(
                     ("solids", k, "anchor", "region"),
                     f"covers no grid node of the domain {dom} (h = {g.h:.3g})",
+                )
+            if not (held & inside).any():
+                raise _PathError(
+                    ("solids", k, "anchor", "region"),
+                    f"holds no node of the solid: its {int(held.sum())} grid nodes lie "
+                    f"outside the solid, which spans {_span(X, Y, inside)}",
                 )
         insides.append(inside)
     if case.initial_velocity is not None:  # shape against the grid, finite values

@@ -110,9 +110,9 @@ def save_checkpoint(run_dir, state, sim_info: dict) -> Path:
     info["saved"] = datetime.now(UTC).isoformat(timespec="seconds")
     final = run_dir / CHECKPOINT_FILE
     prev = run_dir / PREV_CHECKPOINT_FILE
-    fd, tmp = tempfile.mkstemp(prefix=f".{CHECKPOINT_FILE}.", suffix=".tmp", dir=run_dir)
-    os.close(fd)
-    tmp = Path(tmp)
+    from refmap.io._common import make_temp
+
+    tmp = Path(make_temp(final, suffix=".tmp"))
     prev_tmp = None
     try:
         _write_h5(tmp, arrays, info)

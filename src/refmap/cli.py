@@ -55,15 +55,21 @@ def run_cmd(
     cfl: float = typer.Option(None, "--cfl", help="time-step safety factor (default: the scenario's)"),
     movie: bool = typer.Option(None, "--movie/--no-movie", help="also write an MP4 of the picture field"),
     pictures: bool = typer.Option(None, "--pictures/--no-pictures", help="write PNG snapshots"),
-    overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing run folder"),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace the run in an existing run folder "
+                                   "(its frames, diagnostics, metadata, checkpoints and summary are "
+                                   "deleted; other files are kept)"),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
     checkpoint_every: int = typer.Option(1, "--checkpoint-every", min=1, help="frames between checkpoints"),
 ):
-    """Run a scenario or a case file, writing HDF5 frames, an XDMF index, diagnostics and pictures."""
+    """Run a scenario or a case file, writing HDF5 frames, an XDMF index, diagnostics and pictures.
+
+    An existing, non-empty run folder is refused unless --overwrite is given.  Exit codes:
+    0 done, 2 bad input (nothing run), 3 the run blew up, 4 the run could not be written
+    (disk full, permissions), 130 interrupted (Ctrl-C)."""
     from refmap.case import CaseError
     from refmap.casefile import is_case_file, load_run
     from refmap.scenarios import get_case
-    from refmap.simulation import Simulation, SimulationBlowUp
+    from refmap.simulation import Simulation
 
     try:
         if is_case_file(scenario):
@@ -84,6 +90,7 @@ def run_cmd(
             out_dir = out if out is not None else Path("runs") / f"{scenario}_{n}"
             movie = bool(movie)
             pictures = True if pictures is None else pictures
+        _check_out_dir(Path(out_dir), overwrite)
         case.validate()
         sim = Simulation(case, out_dir, progress=progress, pictures=pictures, movie=movie,
                          overwrite=overwrite, command=" ".join(["refmap"] + sys.argv[1:]),
@@ -91,15 +98,44 @@ def run_cmd(
     except (CaseError, ValueError, FileExistsError) as e:
         typer.secho(f"error: {e}", fg="red", err=True)
         raise typer.Exit(2) from None
-    try:
-        sim.run()
-    except SimulationBlowUp as e:
-        typer.secho(f"error: {e}", fg="red", err=True)
-        raise typer.Exit(3) from None
+    _run_sim(sim, out_dir)
     typer.echo(
         f"done: {sim.total_steps} steps in {sim.wall_time:.1f} s "
         f"({sim.total_steps / max(sim.wall_time, 1e-9):.0f} steps/s); output in {out_dir}"
     )
+    if sim.conservation_text():
+        typer.echo(sim.conservation_text())
+
+
+def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
+    """Refuse, before anything is computed, an output path that is a file, or a non-empty
+    folder without --overwrite."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise FileExistsError(f"output path {str(out_dir)!r} exists and is not a folder; "
+                              "choose another --out")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+        raise FileExistsError(f"run folder {str(out_dir)!r} is not empty (a previous run?); pass "
+                              "--overwrite to replace its run, `refmap resume` to continue it, or "
+                              "choose another --out")
+
+
+def _run_sim(sim, out_dir) -> None:
+    """sim.run() with every way it can end turned into a message and an exit code."""
+    from refmap.simulation import SimulationBlowUp
+
+    try:
+        sim.run()
+    except SimulationBlowUp as e:
+        _fail(str(e), 3)
+    except FileExistsError as e:
+        _fail(str(e), 2)
+    except OSError as e:
+        what = e.strerror or str(e)
+        where = f" ({e.filename})" if getattr(e, "filename", None) else ""
+        _fail(f"cannot write the run to {out_dir}: {what}{where}; [Errno {e.errno}]; free some space "
+              f"or choose another --out (frames written so far are kept)", 4)
+    except KeyboardInterrupt:  # Simulation.run has said what it left in the folder
+        _fail("interrupted", 130)
 
 
 # ---------------------------------------------------------------------- restart and post-processing
@@ -121,7 +157,7 @@ def resume_cmd(
     """Continue a run from its checkpoint (after Ctrl-C, a crash, or to extend it)."""
     from refmap.case import CaseError
     from refmap.checkpoint import CheckpointError
-    from refmap.simulation import Simulation, SimulationBlowUp
+    from refmap.simulation import Simulation
 
     if not run_dir.is_dir():
         _fail(f"no run folder '{run_dir}'")
@@ -138,11 +174,10 @@ def resume_cmd(
         return
     typer.echo(f"resuming {sim.case.name} from frame {r['frame_index']} (t = {float(r['t']):g}) "
                f"to t = {sim.case.t_end:g}")
-    try:
-        sim.run()
-    except SimulationBlowUp as e:
-        _fail(str(e), 3)
+    _run_sim(sim, run_dir)
     typer.echo(f"done: {sim.total_steps} steps in {sim.wall_time:.1f} s in all; output in {run_dir}")
+    if sim.conservation_text():
+        typer.echo(sim.conservation_text())
 
 
 @app.command("plot")

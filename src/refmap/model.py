@@ -502,11 +502,14 @@ class Model:
         return state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new, xi=xi_new, phi=phi_new)
 
     # ------------------------------------------------------------------ loops
-    def advance(self, state: State, params: Params, t_target, max_steps: int = 10**9):
+    def advance(self, state: State, params: Params, t_target, max_steps: int = 10**9,
+                speed_limit=jnp.inf):
         """Step until ``t_target`` (the last step is shortened to land on it exactly).
 
-        Stops early if any prognostic field stops being finite or dt collapses.  Returns
-        ``(state, info)`` with info = dict(steps, ok, dt, limit, dt_min, dt_max).
+        Stops early if any prognostic field stops being finite, dt collapses or the largest
+        speed exceeds ``speed_limit`` (the Simulation passes 10 times the fastest speed
+        the case sets up; see :mod:`refmap.simulation`).  Returns ``(state, info)`` with
+        info = dict(steps, ok, dt, limit, dt_min, dt_max).
         """
 
         def finite(s):
@@ -529,7 +532,8 @@ class Model:
             dt = jnp.where(short, rem, dt)
             lim = jnp.where(short, LIMIT_NAMES.index("output"), lim)
             s2 = self.step(s, params, dt)
-            ok2 = finite(s2) & (dt > 1e-14)
+            speed = jnp.sqrt(jnp.max(s2.v[0] ** 2 + s2.v[1] ** 2))
+            ok2 = finite(s2) & (dt > 1e-14) & ~(speed > speed_limit)
             # report the last full step (the landing step is only a remainder)
             keep = short & (k > 0)
             dt_rep = jnp.where(keep, dt_last, dt)

@@ -294,7 +294,7 @@ def format_info(info: dict) -> str:
     for name, rc in (info.get("conservation") or {}).items():
         lines.append(
             f"{name:<11s} relative change {rc['relative_change']:+.3e} "
-            f"({rc['first']:.10g} -> {rc['last']:.10g})"
+            f"({100 * rc['relative_change']:+.3g} %; {rc['first']:.10g} -> {rc['last']:.10g})"
         )
     ck = info.get("checkpoint")
     if ck:

@@ -105,12 +105,34 @@ def to_json(obj: Any, **kw) -> str:
     return json.dumps(obj, default=json_default, **kw)
 
 
+def file_mode() -> int:
+    """The mode a plainly created file gets under the current umask (0644 under the usual
+    022).  ``tempfile.mkstemp`` creates its files 0600 and ``os.replace`` keeps that mode,
+    so every file written through a temporary name is given this mode before it is moved
+    into place (data files readable by the owner only surprised users sharing a run)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def make_temp(final: Path, suffix: str = TMP_SUFFIX) -> str:
+    """A closed, empty temporary file next to ``final`` with the umask's mode; its path."""
+    final = Path(final)
+    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=suffix, dir=final.parent)
+    try:
+        os.fchmod(fd, file_mode())
+    finally:
+        os.close(fd)
+    return tmp
+
+
 def atomic_write_bytes(path: Path, data: bytes, fsync: bool = False) -> None:
     """Write ``data`` to ``path`` through a temporary file in the same folder and
     ``os.replace``, so readers see either the old file or the complete new one."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)
     try:
+        os.fchmod(fd, file_mode())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             if fsync:

@@ -48,7 +48,6 @@ from __future__ import annotations
 import csv
 import operator
 import os
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -73,10 +72,15 @@ from refmap.io._common import (
     frame_name,
     grid_attrs,
     infer_location,
+    make_temp,
     to_json,
 )
 
 __all__ = ["RunWriter", "build_xdmf"]
+
+#: files of a run that are not the writer's own but describe the run it replaces; removed
+#: with ``overwrite=True`` (names as in refmap.checkpoint and refmap.simulation)
+RUN_STATE_FILES = ("checkpoint.h5", "checkpoint.prev.h5", "summary.json")
 
 
 def _compression_options(compression: str | None, level: int) -> dict:
@@ -176,7 +180,9 @@ class RunWriter:
         Output folder.  Created if missing.  If it exists and is not empty a
         ``FileExistsError`` is raised, unless ``overwrite=True``, in which case the files
         this class owns (metadata.json, run.xdmf, diagnostics.csv, frames/frame_*.h5 and
-        leftover ``*.tmp`` files) are deleted first; anything else in the folder is kept.
+        leftover ``*.tmp`` files) and those that describe the old run (checkpoint.h5,
+        checkpoint.prev.h5, summary.json) are deleted first; anything else in the folder is
+        kept.  A path that exists and is not a folder raises ``FileExistsError`` either way.
     grid:
         The :class:`~refmap.grid.Grid` every frame lives on.
     metadata:
@@ -238,7 +244,9 @@ class RunWriter:
 
     # ------------------------------------------------------------------ housekeeping
     def _remove_own_files(self) -> None:
-        for name in (METADATA_FILE, XDMF_FILE, DIAGNOSTICS_FILE):
+        # the run's checkpoints and summary go with its frames: a checkpoint left behind
+        # would let `refmap resume` continue the old run in the new run's folder
+        for name in (METADATA_FILE, XDMF_FILE, DIAGNOSTICS_FILE, *RUN_STATE_FILES):
             p = self.run_dir / name
             if p.is_file():
                 p.unlink()
@@ -315,8 +323,7 @@ class RunWriter:
             zero_loc = u.location
 
         final = self.frames_dir / frame_name(index)
-        fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=TMP_SUFFIX, dir=self.frames_dir)
-        os.close(fd)
+        tmp = make_temp(final)
         try:
             with h5py.File(tmp, "w") as f:
                 f.attrs["format"] = FORMAT

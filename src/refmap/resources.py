@@ -1,0 +1,102 @@
+"""Will a run fit in memory?  :func:`estimate_memory` and :func:`check_memory`.
+
+A run that cannot fit used to die in the middle of :meth:`Case.validate` with a
+``MemoryError`` traceback (``refmap run rotor --n 100000`` tried to allocate a 74.5 GiB
+array), or later inside XLA.  :func:`check_memory` compares an estimate with the memory
+available *before* any grid-sized array is made and raises :class:`~refmap.case.CaseError`
+with both figures.
+
+The estimate is ``BASE_BYTES + nx ny (BYTES_PER_NODE + n_solids BYTES_PER_SOLID_NODE)``,
+fitted to the peak resident memory of one-frame CPU runs (``ru_maxrss``; JAX 0.4, float64):
+
+=========  =====  ============  ============  =============
+scenario   solids  128^2 (MiB)  384^2 (MiB)   640^2 (MiB)
+=========  =====  ============  ============  =============
+circle     1      643           799           1100  (1150-1190 bytes per node)
+two_balls  2      767           1031          1603  (2100-2290 bytes per node)
+=========  =====  ============  ============  =============
+
+Per node that is about 150 float64 numbers for one solid and 285 for two: the state
+(3 + 3 per solid), the derived corner fields and the step's temporaries (XLA's own memory
+analysis of the step: 32 numbers per node of temporaries for one solid, 63-84 for two, 172
+for five), the output fields of a frame on the device and again on the host, and the
+per-solid constants (initial maps, masks) that every compiled function carries.  The
+estimate is a lower bound of what a run needs, so only runs that clearly cannot fit are
+refused.  On a GPU the device's free memory is the budget.
+"""
+
+from __future__ import annotations
+
+import os
+
+#: the interpreter, JAX, the compiled functions of a small run (measured: ~600 MiB at 128^2)
+BASE_BYTES = 600 * 2**20
+#: bytes per grid node without solids, and per node per solid (fitted to the table above)
+BYTES_PER_NODE = 100
+BYTES_PER_SOLID_NODE = 1100
+
+GiB = 2.0**30
+
+
+def estimate_memory(case) -> int:
+    """Bytes a run of ``case`` needs, about (see the module docstring for the fit)."""
+    nodes = int(case.grid.nx) * int(case.grid.ny)
+    return int(BASE_BYTES + nodes * (BYTES_PER_NODE + len(case.solids) * BYTES_PER_SOLID_NODE))
+
+
+def _meminfo_available() -> int | None:
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def available_memory() -> tuple[int | None, str]:
+    """``(bytes, where)``: the free memory of the accelerator JAX runs on, or the host's
+    available memory (``MemAvailable`` of /proc/meminfo, else ``os.sysconf``) on a CPU;
+    ``(None, ...)`` when neither can be read."""
+    try:
+        import jax
+
+        dev = jax.devices()[0]
+        if dev.platform != "cpu":
+            stats = dev.memory_stats() or {}
+            limit = stats.get("bytes_limit")
+            if limit:
+                return int(limit) - int(stats.get("bytes_in_use", 0)), f"free on {dev.device_kind}"
+    except Exception:  # noqa: BLE001 - no device information: fall back to the host
+        pass
+    return _meminfo_available(), "available on this machine"
+
+
+def check_memory(case, available: tuple[int | None, str] | None = None) -> None:
+    """Raise :class:`~refmap.case.CaseError` if ``case`` clearly cannot fit in memory.
+
+    ``available`` overrides :func:`available_memory` (``(bytes, where)``; for tests).
+    """
+    from refmap.case import CaseError
+
+    need = estimate_memory(case)
+    have, where = available if available is not None else available_memory()
+    if have is None or need <= have:
+        return
+    g = case.grid
+    per_node = BYTES_PER_NODE + len(case.solids) * BYTES_PER_SOLID_NODE
+    fit_nodes = max(0.0, (have - BASE_BYTES) / per_node)
+    fit_n = int((fit_nodes * g.nx / g.ny) ** 0.5)  # keep the aspect ratio
+    hint = f"; at most about n = {fit_n} fits" if fit_n >= 16 else ""
+    raise CaseError(
+        f"case {case.name!r}: a {g.nx} x {g.ny} grid with {len(case.solids)} solid(s) needs "
+        f"about {need / GiB:.3g} GiB of memory, more than the {have / GiB:.3g} GiB {where}"
+        f"{hint}"
+    )
+
+
+__all__ = ["available_memory", "check_memory", "estimate_memory"]
