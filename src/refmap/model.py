@@ -175,15 +175,18 @@ class Model:
         kw = dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
         Xn = jnp.asarray(self.grid.mesh("node"))
 
+        shift = n.advected_band * h
+
         def one(xi_k, phi_k):
+            phi_k = phi_k - shift
             # extrapolate the displacement-like xi - x: identical for affine maps, and
             # continuous across periodic edges; both components share one phi (and so the
             # geometric pre-pass of the extrapolation)
-            d = extrapolation.extrapolate_linear(xi_k - Xn, phi_k[None], band=n.band * h, **kw)
+            d = extrapolation.extrapolate_linear(xi_k - Xn, phi_k[None], band=n.band * h - shift, **kw)
             d = extrapolation.smooth_extrapolated(
                 d,
                 phi_k[None],
-                band=n.band * h,
+                band=n.band * h - shift,
                 coef=n.smooth_coef,
                 max_sweeps=n.smooth_max_sweeps,
                 ratio=n.smooth_ratio,

@@ -147,6 +147,7 @@ class Numerics:
     blur_width: float = 2.0
     band: float = 6.0
     stress_band: float = 5.0
+    advected_band: float = 1.0
     pin_rate: float = 5.0
     pin_substeps: int = 10
     pin_inner: float = 5.0
@@ -178,6 +179,11 @@ class Numerics:
             raise ValueError(
                 f"numerics stress_band ({self.stress_band}) must not exceed band ({self.band}): "
                 "solid stress needs an extrapolated reference map"
+            )
+        if not (0.0 <= self.advected_band <= self.band - 3.0):
+            raise ValueError(
+                f"numerics advected_band must be in [0, band - 3] = [0, {self.band - 3.0:g}] "
+                f"(the reference map is advected only where phi < (band - 3) h), got {self.advected_band!r}"
             )
         for name in ("pin_substeps", "redistance_iters", "smooth_max_sweeps"):
             v = getattr(self, name)
