@@ -7,12 +7,13 @@ torsional mode (tangential velocity amp J1(k r), J2(k R) = 0, period 0.61) or in
 breathing (radial) motion.  The total energy -- kinetic + elastic + the fluid's compression
 energy -- must never grow.
 
-Before the fix the extrapolated reference maps just outside the body (0 <= phi < h) changed
-with the body's interior, not with the velocity at those nodes, so the solid stress there
-did work that did not match the change of the elastic energy stored there: the torsional
-mode gained 3.4 % of its energy within a twentieth of a period at this resolution
-(+13 % at 16 cells across), and its energy oscillated above its initial value
-(docs/method.md, "Defects fixed (issue 15)").
+With the thesis's treatment (the default) the extrapolated reference maps just outside the
+body (0 <= phi < h) change with the body's interior, not with the velocity at those nodes,
+so the solid stress there does work that does not match the change of the elastic energy
+stored there: the torsional mode gains 3.0 % of its energy within a twelfth of a period at
+this resolution (the breathing motion 1.2 %).  ``Numerics(advected_band=1)`` keeps the
+advected maps on those nodes and removes the source; it costs accuracy elsewhere, so it is
+not (yet) the default (docs/method.md, "Defects fixed (issue 15)").
 """
 
 from __future__ import annotations
@@ -79,6 +80,9 @@ def _energy_history(mode, t_end, frames, **kw):
     return np.asarray(out)
 
 
+ENERGY_STABLE = Numerics(advected_band=1.0)
+
+
 @pytest.mark.parametrize("mode", ["torsion", "breathing"])
 def test_energy_of_a_vibrating_disc_never_grows(mode):
     """Energy sampled 12 times over one period never rises by more than 1e-3 (relative)
@@ -86,9 +90,25 @@ def test_energy_of_a_vibrating_disc_never_grows(mode):
     balance exactly even when nothing is wrong: forward Euler (an undamped oscillator gains
     (omega dt)^2 per step, ~1e-5 per sample here, and the viscosities damp it by far more)
     and the terms cubic in the amplitude (advection, the moving blend weights; strains are
-    ~1e-2).  Measured on the unchanged code: +3.4e-2 (torsion) at this resolution; after
-    the fix every sample is lower than the one before it (largest ratio 0.995)."""
-    E = _energy_history(mode, PERIOD, 12)
+    ~1e-2).  Measured with the extrapolated near band (the default): +3.0e-2 (torsion),
+    +1.2e-2 (breathing); with ``advected_band = 1`` every sample is lower than the one
+    before it (largest ratios 0.995 and 0.991)."""
+    E = _energy_history(mode, PERIOD, 12, numerics=ENERGY_STABLE)
     rise = np.max(E[1:] / E[:-1] - 1.0)
     assert rise < 1e-3, f"{mode}: energy rose by {rise:.3e} between samples; E/E0 = {np.round(E / E[0], 4)}"
     assert E[-1] < E[0]
+
+
+@pytest.mark.xfail(strict=True, reason="issue 15 item 3: the default extrapolated near band "
+                   "creates energy (+3.0e-2 per twelfth of a period); strict, so a fix of the "
+                   "default shows up here")
+def test_default_numerics_torsion_energy_never_grows():
+    E = _energy_history("torsion", PERIOD, 12)
+    assert np.max(E[1:] / E[:-1] - 1.0) < 1e-3
+
+
+def test_advected_band_outside_the_advected_zone_is_refused():
+    with pytest.raises(ValueError, match="advected_band"):
+        Numerics(advected_band=3.5)  # band 6: the map is advected only where phi < 3h
+    with pytest.raises(ValueError, match="advected_band"):
+        Numerics(advected_band=-1.0)

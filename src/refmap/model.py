@@ -169,13 +169,17 @@ class Model:
         return out
 
     def extrapolate(self, xi, phi):
-        """Extrapolate each solid's map into its band and smooth the extrapolated values."""
+        """Extrapolate each solid's map into its band and smooth the extrapolated values.
+
+        The extrapolation starts from the nodes with ``phi < advected_band h``
+        (:class:`Numerics`): by default the solid's own nodes; with ``advected_band > 0``
+        also the nearest band nodes, which then keep their advected map."""
         n = self.numerics
         h = self.h
         kw = dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
         Xn = jnp.asarray(self.grid.mesh("node"))
 
-        shift = n.advected_band * h
+        shift = n.advected_band * h  # 0 by default: phi - 0.0 is phi, bit for bit
 
         def one(xi_k, phi_k):
             phi_k = phi_k - shift

@@ -126,6 +126,15 @@ class Numerics:
     the adaptive time step; ``dt_fixed`` replaces it by a constant (convergence studies,
     differentiable runs), ``dt_max`` caps it.
 
+    ``advected_band`` (default 0, the thesis's choice): nodes with ``0 <= phi < advected_band h``
+    keep the reference map the advection step gave them instead of receiving the
+    extrapolated one; the extrapolation and its smoothing start from them.  Extrapolated
+    maps change with the body's interior, not with the velocity at their own nodes, so the
+    solid stress there does work that does not match the elastic energy it stores, and a
+    vibrating body can gain energy (docs/method.md, "Defects fixed (issue 15)");
+    ``advected_band = 1`` removes that source but is less accurate at the interface (same
+    page), so it is an option, not the default.  At most ``band - 3`` (the advected zone).
+
     ``compression`` picks the velocity divergence in the fluid-density update
     ``d rho_f / dt = -v . grad rho_f - w_f rho_f div v``:
 
@@ -147,7 +156,7 @@ class Numerics:
     blur_width: float = 2.0
     band: float = 6.0
     stress_band: float = 5.0
-    advected_band: float = 1.0
+    advected_band: float = 0.0
     pin_rate: float = 5.0
     pin_substeps: int = 10
     pin_inner: float = 5.0
