@@ -135,6 +135,12 @@ class Numerics:
     ``advected_band = 1`` removes that source but is less accurate at the interface (same
     page), so it is an option, not the default.  At most ``band - 3`` (the advected zone).
 
+    ``band_force`` says where the solid stress of the extrapolated band pushes:
+    ``"local"`` (default, the thesis's) on the band nodes themselves; ``"solid"`` on the
+    solid nodes the band's maps were extrapolated from, through the transpose of the
+    extrapolation (:meth:`refmap.model.Model.band_force_to_solid`), so that the band's
+    stress does exactly the work that changes its stored energy (docs/method.md).
+
     ``compression`` picks the velocity divergence in the fluid-density update
     ``d rho_f / dt = -v . grad rho_f - w_f rho_f div v``:
 
@@ -171,11 +177,16 @@ class Numerics:
     dt_fixed: float | None = None
     phi_max: float = 12.0
     compression: str = "centred"
+    band_force: str = "local"
 
     def __post_init__(self):
         if self.compression not in ("corner", "centred"):
             raise ValueError(
                 f"numerics compression must be 'corner' or 'centred', got {self.compression!r}"
+            )
+        if self.band_force not in ("local", "solid"):
+            raise ValueError(
+                f"numerics band_force must be 'local' or 'solid', got {self.band_force!r}"
             )
         pos = ["blur_width", "band", "stress_band", "cfl", "phi_max"]
         for name in pos:
