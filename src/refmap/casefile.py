@@ -346,6 +346,7 @@ NumericsSpec = _spec_from_dataclass(
         "blur_width": {"gt": 0},
         "band": {"gt": 0},
         "stress_band": {"gt": 0},
+        "advected_band": {"ge": 0},
         "pin_rate": {"ge": 0},
         "pin_substeps": {"ge": 0},
         "pin_inner": {"ge": 0},

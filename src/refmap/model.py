@@ -218,21 +218,28 @@ class Model:
         return out
 
     def extrapolate(self, xi, phi):
-        """Extrapolate each solid's map into its band and smooth the extrapolated values."""
+        """Extrapolate each solid's map into its band and smooth the extrapolated values.
+
+        The extrapolation starts from the nodes with ``phi < advected_band h``
+        (:class:`Numerics`): by default the solid's own nodes; with ``advected_band > 0``
+        also the nearest band nodes, which then keep their advected map."""
         n = self.numerics
         h = self.h
         kw = dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
         Xn = jnp.asarray(self.grid.mesh("node"))
 
+        shift = n.advected_band * h  # 0 by default: phi - 0.0 is phi, bit for bit
+
         def one(xi_k, phi_k):
+            phi_k = phi_k - shift
             # extrapolate the displacement-like xi - x: identical for affine maps, and
             # continuous across periodic edges; both components share one phi (and so the
             # geometric pre-pass of the extrapolation)
-            d = extrapolation.extrapolate_linear(xi_k - Xn, phi_k[None], band=n.band * h, **kw)
+            d = extrapolation.extrapolate_linear(xi_k - Xn, phi_k[None], band=n.band * h - shift, **kw)
             d = extrapolation.smooth_extrapolated(
                 d,
                 phi_k[None],
-                band=n.band * h,
+                band=n.band * h - shift,
                 coef=n.smooth_coef,
                 max_sweeps=n.smooth_max_sweeps,
                 ratio=n.smooth_ratio,
@@ -243,6 +250,44 @@ class Model:
             return d + Xn
 
         return jax.vmap(one)(xi, phi)
+
+    def band_force_to_solid(self, state: State, d):
+        """Correction to div(sigma) that moves each solid's force off its extrapolated nodes.
+
+        The band nodes' maps are ``x + M(xi_s - x)``, M the extrapolation and smoothing of
+        :meth:`extrapolate` (linear for a given phi), so the elastic energy stored at the
+        band's corners changes with the solid nodes' velocity, not the band nodes'.  For the
+        solid stress to do exactly the work that changes that energy, its force on the band
+        nodes, ``f_b = div(w_s sigma_s)`` there, is applied to the solid nodes as ``M^T f_b``
+        (the vector-Jacobian product of M).  M reproduces affine fields, so the total force
+        and torque are unchanged.  The transpose uses ``smooth_max_sweeps`` fixed sweeps (the
+        stopping rule of the forward smoothing is not differentiable; it seldom stops early).
+        Returns the (2, nx, ny) correction: ``sum_k (M_k^T f_b,k - f_b,k)``.
+        """
+        n = self.numerics
+        h = self.h
+        g = self.grid
+        kw = dict(dx=g.dx, dy=g.dy, periodic=self.bc.periodic)
+        shift = n.advected_band * h
+        sweeps = n.fixed_smooth_sweeps if n.fixed_smooth_sweeps is not None else n.smooth_max_sweeps
+        out = jnp.zeros_like(state.v)
+        for k in range(self.n_solids):
+            ws = d["ws_c"][k]
+            sig = d["sigma_s"][k]
+            fs = div_node(ws * sig[..., 0, 0], ws * sig[..., 0, 1], ws * sig[..., 1, 1], g.dx, g.dy)
+            phi_k = state.phi[k] - shift
+            band = (phi_k >= 0) & (phi_k <= n.band * h - shift)
+            fb = jnp.where(band[None], fs, 0.0)
+
+            def M(f, phi_k=phi_k):
+                f = extrapolation.extrapolate_linear(f, phi_k[None], band=n.band * h - shift, **kw)
+                return extrapolation.smooth_extrapolated(
+                    f, phi_k[None], band=n.band * h - shift, coef=n.smooth_coef, fixed_sweeps=sweeps, **kw
+                )
+
+            _, vjp = jax.vjp(M, jnp.zeros_like(fb))
+            out = out + vjp(fb)[0] - fb
+        return out
 
     def pin(self, phi, xi, dt):
         n = self.numerics
@@ -458,6 +503,8 @@ class Model:
 
         # 6. updates of v and rho_f
         divs = div_node(d["sxx"], d["sxy"], d["syy"], dx, dy)
+        if n.band_force == "solid" and self.n_solids:
+            divs = divs + self.band_force_to_solid(state, d)
         force = divs + fl.extra_viscosity * laplacian(vp, dx, dy, g=2)
         ctx = dict(state=state, params=params, derived=d, model=self)
         for term in self.body_forces:

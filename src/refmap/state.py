@@ -132,6 +132,21 @@ class Numerics:
     bending by ``1 + C (h / t)^2`` with ``C = 6 blur_width^2`` (erf) or
     ``1.568 blur_width^2`` (sine); see :func:`refmap.blend.bending_factor`.
 
+    ``advected_band`` (default 0, the thesis's choice): nodes with ``0 <= phi < advected_band h``
+    keep the reference map the advection step gave them instead of receiving the
+    extrapolated one; the extrapolation and its smoothing start from them.  Extrapolated
+    maps change with the body's interior, not with the velocity at their own nodes, so the
+    solid stress there does work that does not match the elastic energy it stores, and a
+    vibrating body can gain energy (docs/method.md, "Defects fixed (issue 15)");
+    ``advected_band = 1`` removes that source but is less accurate at the interface (same
+    page), so it is an option, not the default.  At most ``band - 3`` (the advected zone).
+
+    ``band_force`` says where the solid stress of the extrapolated band pushes:
+    ``"local"`` (default, the thesis's) on the band nodes themselves; ``"solid"`` on the
+    solid nodes the band's maps were extrapolated from, through the transpose of the
+    extrapolation (:meth:`refmap.model.Model.band_force_to_solid`), so that the band's
+    stress does exactly the work that changes its stored energy (docs/method.md).
+
     ``compression`` picks the velocity divergence in the fluid-density update
     ``d rho_f / dt = -v . grad rho_f - w_f rho_f div v``:
 
@@ -154,6 +169,7 @@ class Numerics:
     blend: str = "erf"
     band: float = 6.0
     stress_band: float = 5.0
+    advected_band: float = 0.0
     pin_rate: float = 5.0
     pin_substeps: int = 10
     pin_inner: float = 5.0
@@ -168,6 +184,7 @@ class Numerics:
     dt_fixed: float | None = None
     phi_max: float = 12.0
     compression: str = "centred"
+    band_force: str = "local"
 
     def __post_init__(self):
         if self.blend not in ("erf", "sine"):
@@ -175,6 +192,10 @@ class Numerics:
         if self.compression not in ("corner", "centred"):
             raise ValueError(
                 f"numerics compression must be 'corner' or 'centred', got {self.compression!r}"
+            )
+        if self.band_force not in ("local", "solid"):
+            raise ValueError(
+                f"numerics band_force must be 'local' or 'solid', got {self.band_force!r}"
             )
         pos = ["blur_width", "band", "stress_band", "cfl", "phi_max"]
         for name in pos:
@@ -187,6 +208,11 @@ class Numerics:
             raise ValueError(
                 f"numerics stress_band ({self.stress_band}) must not exceed band ({self.band}): "
                 "solid stress needs an extrapolated reference map"
+            )
+        if not (0.0 <= self.advected_band <= self.band - 3.0):
+            raise ValueError(
+                f"numerics advected_band must be in [0, band - 3] = [0, {self.band - 3.0:g}] "
+                f"(the reference map is advected only where phi < (band - 3) h), got {self.advected_band!r}"
             )
         for name in ("pin_substeps", "redistance_iters", "smooth_max_sweeps"):
             v = getattr(self, name)
