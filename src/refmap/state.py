@@ -121,8 +121,16 @@ class Numerics:
     """Static numerical settings; lengths are in units of the grid spacing h = min(dx, dy).
 
     Defaults follow the thesis: blur width 2h (H = (1 + erf(phi / (2h))) / 2), reference map
-    extrapolated ~6h out, pinning speed k = 5 with 10 sub-steps where phi > -5h, smoothing
-    of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.  ``cfl`` scales
+    extrapolated ~6h out, smoothing
+    of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.
+
+    Pinning: by default (``pin_rate=None``) each step sets phi = phi0(xi) where
+    -pin_inner h < phi < (band - 1) h and re-distances the rest from the frozen contour with
+    ``redistance_iters`` = 10 iterations, so the zero level set is the material's.  A number
+    ``pin_rate = k`` (the thesis's k = 5, with ``pin_substeps``) relaxes phi towards
+    phi0(xi) at rate min(k n_sub dt, 1) per step instead; the zero level set then lags
+    |U| / (k n_sub) behind a body moving at speed U, a fixed distance that does not shrink
+    with h (docs/method.md).  ``cfl`` scales
     the adaptive time step; ``dt_fixed`` replaces it by a constant (convergence studies,
     differentiable runs), ``dt_max`` caps it.
 
@@ -147,10 +155,10 @@ class Numerics:
     blur_width: float = 2.0
     band: float = 6.0
     stress_band: float = 5.0
-    pin_rate: float = 5.0
+    pin_rate: float | None = None
     pin_substeps: int = 10
     pin_inner: float = 5.0
-    redistance_iters: int = 2
+    redistance_iters: int = 10
     smooth_coef: float = 0.025
     smooth_max_sweeps: int = 80
     smooth_ratio: float = 0.25
@@ -179,6 +187,8 @@ class Numerics:
                 f"numerics stress_band ({self.stress_band}) must not exceed band ({self.band}): "
                 "solid stress needs an extrapolated reference map"
             )
+        if self.pin_rate is not None and not (self.pin_rate >= 0):
+            raise ValueError(f"numerics pin_rate must be >= 0 (or left out), got {self.pin_rate!r}")
         for name in ("pin_substeps", "redistance_iters", "smooth_max_sweeps"):
             v = getattr(self, name)
             if not isinstance(v, int) or v < 0:
