@@ -281,12 +281,13 @@ def test_rigidly_translating_body_interface_follows_material(n):
     contour must lie on the exact circle to within a small fraction of a cell, whatever the
     speed and the resolution.
 
-    With phi only relaxed towards phi0(xi) at rate k n_sub = 50 per unit time (the thesis's
-    pinning, the default before issue 15) it lagged |U| / 50 behind: measured 0.22 h at
-    32^2 and 0.44 h at 64^2 for U = (0.36, 0) (0.45 h and 0.90 h expected for |U| = 0.70).
-    Now phi = phi0(xi) in the band: measured 1e-13 h (xi = x - U t is reproduced exactly,
-    and so is the sampled distance of the circle).  Bound 0.05 h: a few hundredths of a
-    cell is what a contour moved by truncation errors (a non-uniform flow) would show,
+    With phi only relaxed towards phi0(xi) at rate k n_sub = 50 per unit time (the
+    thesis's pinning, the default before issue 15, now Numerics(pin_copy=0)) it lagged
+    |U| / 50 behind: measured 0.22 h at 32^2 and 0.44 h at 64^2 for U = (0.36, 0) (0.45 h
+    and 0.90 h expected for |U| = 0.70).  Now phi = phi0(xi) at the nodes next to the
+    contour: measured 1e-13 h (xi = x - U t is reproduced exactly, and so is the sampled
+    distance of the circle).  Bound 0.05 h: a few hundredths of a cell is what a contour
+    moved by truncation errors (a non-uniform flow) would show,
     while a lag of a quarter of the old one would already exceed it at 32^2."""
     from refmap.boundary import Boundary
     from refmap.geometry import Disc

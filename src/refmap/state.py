@@ -124,13 +124,12 @@ class Numerics:
     extrapolated ~6h out, smoothing
     of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.
 
-    Pinning: by default (``pin_rate=None``) each step sets phi = phi0(xi) where
-    -pin_inner h < phi < (band - 1) h and re-distances the rest from the frozen contour with
-    ``redistance_iters`` = 10 iterations, so the zero level set is the material's.  A number
-    ``pin_rate = k`` (the thesis's k = 5, with ``pin_substeps``) relaxes phi towards
-    phi0(xi) at rate min(k n_sub dt, 1) per step instead; the zero level set then lags
-    |U| / (k n_sub) behind a body moving at speed U, a fixed distance that does not shrink
-    with h (docs/method.md).  ``cfl`` scales
+    Pinning: each step phi = phi0(xi) is copied at the nodes next to the zero contour,
+    |phi| < ``pin_copy`` h, so the zero level set is the material's; elsewhere in the zone
+    -pin_inner h < phi < (band - 1) h phi is relaxed towards phi0(xi) at rate
+    min(pin_rate pin_substeps dt, 1) per step (the thesis's k = 5, 10 sub-steps).  With
+    ``pin_copy = 0`` (the thesis's pinning) the zero level set lags |U| / (k n_sub) behind a
+    body moving at speed U, a fixed distance that does not shrink with h (docs/method.md).  ``cfl`` scales
     the adaptive time step; ``dt_fixed`` replaces it by a constant (convergence studies,
     differentiable runs), ``dt_max`` caps it.
 
@@ -155,10 +154,11 @@ class Numerics:
     blur_width: float = 2.0
     band: float = 6.0
     stress_band: float = 5.0
-    pin_rate: float | None = None
+    pin_rate: float = 5.0
     pin_substeps: int = 10
     pin_inner: float = 5.0
-    redistance_iters: int = 10
+    pin_copy: float = 1.5
+    redistance_iters: int = 2
     smooth_coef: float = 0.025
     smooth_max_sweeps: int = 80
     smooth_ratio: float = 0.25
@@ -187,8 +187,9 @@ class Numerics:
                 f"numerics stress_band ({self.stress_band}) must not exceed band ({self.band}): "
                 "solid stress needs an extrapolated reference map"
             )
-        if self.pin_rate is not None and not (self.pin_rate >= 0):
-            raise ValueError(f"numerics pin_rate must be >= 0 (or left out), got {self.pin_rate!r}")
+        for name in ("pin_rate", "pin_copy"):
+            if not (getattr(self, name) >= 0):
+                raise ValueError(f"numerics {name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("pin_substeps", "redistance_iters", "smooth_max_sweeps"):
             v = getattr(self, name)
             if not isinstance(v, int) or v < 0:
