@@ -350,6 +350,7 @@ NumericsSpec = _spec_from_dataclass(
         "pin_rate": {"ge": 0},
         "pin_substeps": {"ge": 0},
         "pin_inner": {"ge": 0},
+        "pin_copy": {"gt": 0},
         "redistance_iters": {"ge": 0},
         "smooth_coef": {"ge": 0},
         "smooth_max_sweeps": {"ge": 0},

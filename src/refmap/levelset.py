@@ -190,8 +190,11 @@ def pin_levelset(
     level set evaluated at the current reference map, computed by the caller):
 
     1. ``phi <- phi + rate (psi - phi)`` where ``-inner < phi < outer`` (elsewhere unchanged);
-       ``rate`` in [0, 1] is the caller's ``k * n_sub * dt`` (thesis: k = 5, 10 sub-steps,
-       zone ``phi > -5 dx``); ``rate = 1`` copies ``psi`` into the zone;
+       ``rate`` in [0, 1] (a scalar or an array broadcasting to ``phi``); ``rate = 1``
+       copies ``psi``, ``rate = k * n_sub * dt`` is the thesis's relaxation (k = 5, 10
+       sub-steps, zone ``phi > -5 dx``), whose contour alone trails a body moving at speed U
+       by ``U / (k n_sub)``; the model copies at the nodes next to the contour and relaxes
+       elsewhere (``Numerics.pin_copy``);
     2. re-distance with ``redistance_iters`` iterations of :func:`redistance`, the nodes
        next to the zero contour frozen (so the contour is exactly that of step 1, smooth
        because psi is), restoring ``|grad phi| = 1`` away from it, since ``psi`` is only a

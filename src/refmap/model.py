@@ -292,7 +292,10 @@ class Model:
     def pin(self, phi, xi, dt):
         n = self.numerics
         h = self.h
-        rate = jnp.minimum(n.pin_rate * n.pin_substeps * dt, 1.0)
+        # phi = phi0(xi) at the nodes next to the contour (|phi| < pin_copy h), so the contour
+        # is the material's (no lag); elsewhere in the zone the thesis's relaxation at rate
+        # k n_sub dt (alone, pin_copy = 0, it trails a moving body by U / (k n_sub))
+        relax = jnp.minimum(n.pin_rate * n.pin_substeps * dt, 1.0)
         out = []
         for k in range(self.n_solids):
             psi = self.phi0(k, xi[k])
@@ -302,7 +305,7 @@ class Model:
                     psi,
                     self.grid.dx,
                     self.grid.dy,
-                    rate=rate,
+                    rate=jnp.where(jnp.abs(phi[k]) < n.pin_copy * h, 1.0, relax),
                     inner=n.pin_inner * h,
                     outer=(n.band - 1.0) * h,
                     redistance_iters=n.redistance_iters,

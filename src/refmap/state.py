@@ -121,8 +121,15 @@ class Numerics:
     """Static numerical settings; lengths are in units of the grid spacing h = min(dx, dy).
 
     Defaults follow the thesis: blur width 2h (H = (1 + erf(phi / (2h))) / 2), reference map
-    extrapolated ~6h out, pinning speed k = 5 with 10 sub-steps where phi > -5h, smoothing
-    of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.  ``cfl`` scales
+    extrapolated ~6h out, smoothing
+    of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.
+
+    Pinning: each step phi = phi0(xi) is copied at the nodes next to the zero contour,
+    |phi| < ``pin_copy`` h, so the zero level set is the material's; elsewhere in the zone
+    -pin_inner h < phi < (band - 1) h phi is relaxed towards phi0(xi) at rate
+    min(pin_rate pin_substeps dt, 1) per step (the thesis's k = 5, 10 sub-steps).  With
+    ``pin_copy = 0`` (the thesis's pinning) the zero level set lags |U| / (k n_sub) behind a
+    body moving at speed U, a fixed distance that does not shrink with h (docs/method.md).  ``cfl`` scales
     the adaptive time step; ``dt_fixed`` replaces it by a constant (convergence studies,
     differentiable runs), ``dt_max`` caps it.
 
@@ -173,6 +180,7 @@ class Numerics:
     pin_rate: float = 5.0
     pin_substeps: int = 10
     pin_inner: float = 5.0
+    pin_copy: float = 1.5
     redistance_iters: int = 2
     smooth_coef: float = 0.025
     smooth_max_sweeps: int = 80
@@ -214,6 +222,9 @@ class Numerics:
                 f"numerics advected_band must be in [0, band - 3] = [0, {self.band - 3.0:g}] "
                 f"(the reference map is advected only where phi < (band - 3) h), got {self.advected_band!r}"
             )
+        for name in ("pin_rate", "pin_copy"):
+            if not (getattr(self, name) >= 0):
+                raise ValueError(f"numerics {name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("pin_substeps", "redistance_iters", "smooth_max_sweeps"):
             v = getattr(self, name)
             if not isinstance(v, int) or v < 0:
