@@ -1631,14 +1631,20 @@ def to_toml(doc: Mapping, comments: Mapping | None = None) -> str:
 # Case -> case file
 
 
+def _relative_file(f, base_dir):
+    """``f`` relative to the case file's folder ``base_dir`` (unchanged when there is none,
+    or when no relative path exists, e.g. another drive on Windows)."""
+    if base_dir is None:
+        return f
+    try:
+        return os.path.relpath(f, Path(base_dir).resolve())
+    except ValueError:
+        return f
+
+
 def _shape_doc(shape: Shape, base_dir) -> dict:
     if isinstance(shape, ArrayShape):
-        f = shape.file
-        if base_dir is not None:
-            try:
-                f = os.path.relpath(f, Path(base_dir).resolve())
-            except ValueError:  # other drive (Windows)
-                pass
+        f = _relative_file(shape.file, base_dir)
         d = {"type": shape.mode, "file": f, "extent": list(shape.extent)}
         if shape.invert:
             d["invert"] = True
@@ -1698,13 +1704,7 @@ def _case_doc(case: Case, base_dir=None) -> dict:
     if isinstance(iv, VelocityExpression):
         doc["initial_velocity"] = {"u": iv.u, "v": iv.v}
     elif isinstance(iv, VelocityFile):
-        f = iv.file
-        if base_dir is not None:
-            try:
-                f = os.path.relpath(f, Path(base_dir).resolve())
-            except ValueError:  # other drive (Windows)
-                pass
-        doc["initial_velocity"] = {"file": f}
+        doc["initial_velocity"] = {"file": _relative_file(iv.file, base_dir)}
         if iv.dataset is not None:
             doc["initial_velocity"]["dataset"] = iv.dataset
     elif iv is not None:
