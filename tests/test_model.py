@@ -236,3 +236,28 @@ def test_blow_up_names_step_time_field_and_keeps_frames(tmp_path):
     ds = open_run(tmp_path / "run")
     assert ds.sizes["time"] >= 1
     assert np.all(np.isfinite(ds["u"].values))
+
+
+def test_solid_fractions_gradient_is_finite_far_from_every_solid():
+    """Reverse-mode derivatives through the blend's partition of unity (issue 13): where
+    no solid is near, H = 1 exactly and sum_k (1 - H_k) = 0.  The renormalisation used to
+    divide by max(total, 1e-300) inside a ``where``; its derivative there is -1e600 = -inf,
+    and the backward pass multiplied it by the untaken branch's zero: NaN.  The gradient of
+    a smooth function of the fractions must be finite, and equal to central differences
+    where the fractions are smooth."""
+    # column 0: no solid near; 1, 3: overlapping zones (renormalised); 4: one thin zone
+    H = jnp.array([[1.0, 0.3, 0.9, 0.2, 0.9], [1.0, 0.4, 1.0, 0.3, 0.95]])
+
+    def f(H):
+        ws, wf = solid_fractions(H)
+        return jnp.sum(ws * jnp.arange(1.0, 6.0)) + jnp.sum(wf**2)
+
+    g = jax.grad(f)(H)
+    assert bool(jnp.all(jnp.isfinite(g)))
+    eps = 1e-6
+    # central differences only where the fractions are smooth (H = 1 is a kink: H > 1 is
+    # not a blend weight)
+    for idx in [(0, 1), (1, 1), (0, 3), (1, 3), (0, 4), (1, 4)]:
+        d = jnp.zeros_like(H).at[idx].set(eps)
+        fd = (f(H + d) - f(H - d)) / (2 * eps)
+        assert float(g[idx]) == pytest.approx(float(fd), rel=1e-6, abs=1e-9)

@@ -112,7 +112,10 @@ def solid_fractions(H):
     """
     ws = 1.0 - H
     total = jnp.sum(ws, axis=0)
-    scale = jnp.where(total > 1.0, 1.0 / jnp.maximum(total, 1e-300), 1.0)
+    # 1 / max(total, 1) is 1 / total where the zones overlap and exactly 1 elsewhere; unlike
+    # a guarded 1 / total inside a where, its derivative is finite everywhere (no 0 * inf
+    # NaN in reverse mode where no solid is near)
+    scale = 1.0 / jnp.maximum(total, 1.0)
     ws = ws * scale
     wf = jnp.clip(1.0 - jnp.sum(ws, axis=0), 0.0, 1.0)
     return ws, wf
