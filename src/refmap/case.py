@@ -215,6 +215,41 @@ class Case:
             out["free fall"] = math.sqrt(2.0 * gmag * max(g.bx - g.ax, g.by - g.ay))
         return out
 
+    def hydrostatic_mach(self):
+        """``(M, rho0, |g|, L, lambda_f)`` with M = rho0 |g| L / lambda_f, L the domain's
+        height along g (see :meth:`_check_hydrostatic`); None without gravity or with
+        traced fluid parameters."""
+        gx, gy = (float(x) for x in self.gravity)
+        gmag = math.hypot(gx, gy)
+        if gmag == 0:
+            return None
+        fl = self.fluid
+        try:
+            rho0, lam = float(fl.rho0), float(fl.lambda_f)
+        except (TypeError, ValueError):
+            return None
+        g = self.grid
+        L = (abs(gx) * (g.bx - g.ax) + abs(gy) * (g.by - g.ay)) / gmag  # height along g
+        return rho0 * gmag * L / lam, rho0, gmag, L, lam
+
+    def sound_damping_shortfall(self):
+        """``(nu, need, c, h)`` when sound is under-damped with the centred compression
+        (``(eta + extra_viscosity + bulk_viscosity) / rho0 = nu < need = c h / 2``; see
+        :meth:`_check_sound_damping`), else None."""
+        if self.numerics.compression != "centred":
+            return None
+        fl = self.fluid
+        try:
+            c = math.sqrt(float(fl.lambda_f) / float(fl.rho0))
+            nu = (float(fl.eta) + float(fl.extra_viscosity) + float(fl.bulk_viscosity)) / float(
+                fl.rho0
+            )
+        except (TypeError, ValueError):  # traced or symbolic parameters: nothing to check
+            return None
+        h = min(self.grid.dx, self.grid.dy)
+        need = 0.5 * c * h
+        return None if nu >= need else (nu, need, c, h)
+
     def _check_hydrostatic(self):
         """Warn when gravity compresses the fluid by more than its stiffness can hold.
 
@@ -228,18 +263,10 @@ class Case:
         the top, M = 39 (g = 9.81) blows up at t = 0.85.  Above M = 1 the settling flow is
         supersonic, which this scheme does not capture (see docs/method.md).
         """
-        gx, gy = (float(x) for x in self.gravity)
-        gmag = math.hypot(gx, gy)
-        if gmag == 0:
+        hm = self.hydrostatic_mach()
+        if hm is None:
             return
-        fl = self.fluid
-        try:
-            rho0, lam = float(fl.rho0), float(fl.lambda_f)
-        except (TypeError, ValueError):
-            return
-        g = self.grid
-        L = (abs(gx) * (g.bx - g.ax) + abs(gy) * (g.by - g.ay)) / gmag  # height along g
-        mach = rho0 * gmag * L / lam
+        mach, rho0, gmag, L, lam = hm
         if mach <= 1.0:
             return
         warnings.warn(
@@ -306,21 +333,11 @@ class Case:
         condition (the same cavity stays at |v| = 0.67 without bulk viscosity), so there is
         nothing to warn about.
         """
-        if self.numerics.compression != "centred":
+        short = self.sound_damping_shortfall()
+        if short is None:
             return
-        fl = self.fluid
-        try:
-            c = math.sqrt(float(fl.lambda_f) / float(fl.rho0))
-            nu = (float(fl.eta) + float(fl.extra_viscosity) + float(fl.bulk_viscosity)) / float(
-                fl.rho0
-            )
-        except (TypeError, ValueError):  # traced or symbolic parameters: nothing to check
-            return
-        h = min(self.grid.dx, self.grid.dy)
-        need = 0.5 * c * h
-        if nu >= need:
-            return
-        zeta = (need - nu) * float(fl.rho0)
+        nu, need, c, h = short
+        zeta = (need - nu) * float(self.fluid.rho0)
         warnings.warn(
             f"case {self.name!r}: sound in the fluid is under-damped on this grid: "
             f"(eta + extra_viscosity + bulk_viscosity) / rho0 = {nu:.3g} < c h / 2 = {need:.3g} "

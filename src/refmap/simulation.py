@@ -487,27 +487,21 @@ class Simulation:
         if nm.dt_fixed is not None:
             out.append(f"numerics.dt_fixed = {nm.dt_fixed:g} too large (leave it out for the "
                        "adaptive step, or lower it below the limit the CaseWarning named)")
-        gmag = float(np.hypot(*case.gravity))
-        if gmag > 0:
-            g = case.grid
-            L = max(g.bx - g.ax, g.by - g.ay)
-            mach = float(fl.rho0) * gmag * L / float(fl.lambda_f)
-            if mach > 1:
-                out.append(f"gravity compressing a too soft fluid (rho0 |g| L / lambda_f = {mach:.3g} "
-                           f"> 1: raise fluid.lambda_f to >= {10 * float(fl.rho0) * gmag * L:.3g} or "
-                           "lower the gravity)")
+        hm = case.hydrostatic_mach()
+        if hm is not None and hm[0] > 1:
+            mach, rho0, gmag, L, _ = hm
+            out.append(f"gravity compressing a too soft fluid (rho0 |g| L / lambda_f = {mach:.3g} "
+                       f"> 1: raise fluid.lambda_f to >= {10 * rho0 * gmag * L:.3g} or "
+                       "lower the gravity)")
         if float(fl.eta) + float(fl.extra_viscosity) + float(fl.bulk_viscosity) == 0:
             out.append("an inviscid fluid: forward Euler amplifies undamped waves at any time step "
                        "(give it viscosity, e.g. fluid.extra_viscosity = 0.02)")
         elif case.solids and float(fl.extra_viscosity) == 0:
             out.append("no extra viscosity: the solid's waves are undamped and forward Euler "
                        "amplifies them at any time step (fluid.extra_viscosity = 0.02)")
-        if nm.compression == "centred":
-            c = float(np.sqrt(float(fl.lambda_f) / float(fl.rho0)))
-            nu = (float(fl.eta) + float(fl.extra_viscosity) + float(fl.bulk_viscosity)) / float(fl.rho0)
-            if nu < 0.5 * c * case.grid.h:
-                out.append("under-damped sound (see the CaseWarning: fluid.bulk_viscosity or "
-                           "numerics.compression = 'corner')")
+        if case.sound_damping_shortfall() is not None:
+            out.append("under-damped sound (see the CaseWarning: fluid.bulk_viscosity or "
+                       "numerics.compression = 'corner')")
         if out:  # a specific cause: lowering cfl or refining would not cure it
             return out
         out.append(f"a time step too large (lower numerics.cfl, now {nm.cfl:g}; a finer grid also "
