@@ -226,33 +226,38 @@ class Model:
         The extrapolation starts from the nodes with ``phi < advected_band h``
         (:class:`Numerics`): by default the solid's own nodes; with ``advected_band > 0``
         also the nearest band nodes, which then keep their advected map."""
-        n = self.numerics
-        h = self.h
-        kw = dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
         Xn = jnp.asarray(self.grid.mesh("node"))
 
-        shift = n.advected_band * h  # 0 by default: phi - 0.0 is phi, bit for bit
-
         def one(xi_k, phi_k):
-            phi_k = phi_k - shift
             # extrapolate the displacement-like xi - x: identical for affine maps, and
             # continuous across periodic edges; both components share one phi (and so the
             # geometric pre-pass of the extrapolation)
-            d = extrapolation.extrapolate_linear(xi_k - Xn, phi_k[None], band=n.band * h - shift, **kw)
-            d = extrapolation.smooth_extrapolated(
-                d,
-                phi_k[None],
-                band=n.band * h - shift,
-                coef=n.smooth_coef,
-                max_sweeps=n.smooth_max_sweeps,
-                ratio=n.smooth_ratio,
-                atol=n.smooth_atol,
-                fixed_sweeps=n.fixed_smooth_sweeps,
-                **kw,
-            )
-            return d + Xn
+            return self._extend(xi_k - Xn, phi_k) + Xn
 
         return jax.vmap(one)(xi, phi)
+
+    def _extend(self, f, phi_k, fixed_sweeps=None):
+        """The band operator M of :meth:`extrapolate` on node field(s) ``f`` (c, nx, ny):
+        extrapolation from the nodes with ``phi < advected_band h`` and smoothing of the
+        extrapolated values.  ``fixed_sweeps`` overrides the smoothing's sweep rule
+        (``Numerics.fixed_smooth_sweeps``, else the adaptive stop)."""
+        n = self.numerics
+        shift = n.advected_band * self.h  # 0 by default: phi - 0.0 is phi, bit for bit
+        phi_k = (phi_k - shift)[None]
+        band = n.band * self.h - shift
+        kw = dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
+        f = extrapolation.extrapolate_linear(f, phi_k, band=band, **kw)
+        return extrapolation.smooth_extrapolated(
+            f,
+            phi_k,
+            band=band,
+            coef=n.smooth_coef,
+            max_sweeps=n.smooth_max_sweeps,
+            ratio=n.smooth_ratio,
+            atol=n.smooth_atol,
+            fixed_sweeps=n.fixed_smooth_sweeps if fixed_sweeps is None else fixed_sweeps,
+            **kw,
+        )
 
     def band_force_to_solid(self, state: State, d):
         """Correction to div(sigma) that moves each solid's force off its extrapolated nodes.
@@ -270,7 +275,6 @@ class Model:
         n = self.numerics
         h = self.h
         g = self.grid
-        kw = dict(dx=g.dx, dy=g.dy, periodic=self.bc.periodic)
         shift = n.advected_band * h
         sweeps = n.fixed_smooth_sweeps if n.fixed_smooth_sweeps is not None else n.smooth_max_sweeps
         out = jnp.zeros_like(state.v)
@@ -278,15 +282,12 @@ class Model:
             ws = d["ws_c"][k]
             sig = d["sigma_s"][k]
             fs = div_node(ws * sig[..., 0, 0], ws * sig[..., 0, 1], ws * sig[..., 1, 1], g.dx, g.dy)
-            phi_k = state.phi[k] - shift
-            band = (phi_k >= 0) & (phi_k <= n.band * h - shift)
+            phi_k = state.phi[k]
+            band = (phi_k - shift >= 0) & (phi_k - shift <= n.band * h - shift)
             fb = jnp.where(band[None], fs, 0.0)
 
             def M(f, phi_k=phi_k):
-                f = extrapolation.extrapolate_linear(f, phi_k[None], band=n.band * h - shift, **kw)
-                return extrapolation.smooth_extrapolated(
-                    f, phi_k[None], band=n.band * h - shift, coef=n.smooth_coef, fixed_sweeps=sweeps, **kw
-                )
+                return self._extend(f, phi_k, fixed_sweeps=sweeps)
 
             _, vjp = jax.vjp(M, jnp.zeros_like(fb))
             out = out + vjp(fb)[0] - fb

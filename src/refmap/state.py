@@ -16,6 +16,8 @@ from dataclasses import dataclass, field, fields
 import jax
 import jax.numpy as jnp
 
+from refmap.blend import check_kernel
+
 
 def _register(cls, data):
     """Register a frozen dataclass as a pytree whose treedef carries the class itself.
@@ -195,8 +197,10 @@ class Numerics:
     band_force: str = "local"
 
     def __post_init__(self):
-        if self.blend not in ("erf", "sine"):
-            raise ValueError(f"numerics blend must be 'erf' or 'sine', got {self.blend!r}")
+        try:
+            check_kernel(self.blend)
+        except ValueError as e:
+            raise ValueError(f"numerics {e}") from None
         if self.compression not in ("corner", "centred"):
             raise ValueError(
                 f"numerics compression must be 'corner' or 'centred', got {self.compression!r}"
