@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 
 import jax.numpy as jnp
-from jax.scipy.special import erf
+from jax.scipy.special import erf, erfc
 
 KERNELS = ("erf", "sine")
 
@@ -57,6 +57,21 @@ def heaviside(phi, kernel: str, width):
     return jnp.where(x <= -1.0, 0.0, jnp.where(x >= 1.0, 1.0, inner))
 
 
+def presence(phi, kernel: str, width, cutoff: float = 0.0):
+    """A body's presence ``1 - H(phi)`` (1 inside, 1/2 on the surface, 0 far outside) for
+    the contact force, truncated at ``cutoff``: ``max(1 - H - cutoff, 0) / (1 - cutoff)``.
+
+    ``"erf"``: ``erfc(phi / width) / 2`` (computed as erfc, accurate in the far tail);
+    exactly 0 beyond ``erfc^-1(2 cutoff) width`` (1.65 width at cutoff 0.01).  ``"sine"``:
+    the sine kernel of half-width ``width``; compactly supported already, so ``cutoff``
+    is not applied (it would only shrink the support).
+    """
+    phi = jnp.asarray(phi)
+    if check_kernel(kernel) == "erf":
+        return jnp.maximum(0.5 * erfc(phi / width) - cutoff, 0.0) / (1.0 - cutoff)
+    return 1.0 - heaviside(phi, kernel, width)
+
+
 def support(kernel: str, width_h: float) -> float:
     """Half-width, in cells, outside which ``H`` is 0 or 1 to 1e-12 (erf) or exactly (sine)."""
     if check_kernel(kernel) == "erf":
@@ -79,4 +94,4 @@ def bending_factor(kernel: str, width_h: float, cells_across: float) -> float:
     return 1.0 + 24.0 * first_moment(kernel, width_h) / cells_across**2
 
 
-__all__ = ["KERNELS", "bending_factor", "check_kernel", "first_moment", "heaviside", "support"]
+__all__ = ["KERNELS", "bending_factor", "check_kernel", "first_moment", "heaviside", "presence", "support"]

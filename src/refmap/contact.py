@@ -26,6 +26,9 @@ b.  At every grid corner, with a and b the nearest and second-nearest solid ther
   the mid-surface);
 * ``chi(phi) = max(erfc(phi / (reach h)) / 2 - cutoff, 0) / (1 - cutoff)`` is the presence
   of a body: 1 inside, 1/2 on its surface, exactly 0 more than 1.65 reach cells outside.
+  It is ``1 - H`` of the model's blend kernel (:func:`refmap.blend.presence`): with
+  ``Numerics.blend = "sine"`` it is the sine kernel of half-width 1.65 reach cells (the
+  same support, so contact engages at the same gap);
   The product ``chi_a chi_b`` is nonzero only where the two bodies' surroundings overlap,
   so the force acts only when the mid-surface lies inside both bodies' reach, i.e. for a
   gap below 3.3 reach cells, and grows monotonically as the gap closes (0.25 K at contact,
@@ -95,8 +98,8 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import erfc
 
+from refmap import blend
 from refmap.operators import div_node
 
 __all__ = [
@@ -262,9 +265,18 @@ def _kernel(p, contact: Contact, h):
     return _truncated(jnp.exp(-((p / (contact.width * h)) ** 2)), contact.cutoff)
 
 
-def _presence(phi, contact: Contact, h):
-    """Truncated smoothed indicator of a body: 1 inside, 1/2 on its surface, 0 far out."""
-    return _truncated(0.5 * erfc(phi / (contact.reach * h)), contact.cutoff)
+#: the sine presence's half-width in units of ``reach h``: the support of the truncated erf
+#: presence at the default cutoff (erfc(1.65) / 2 = 0.0099), so that contact engages at the
+#: same gap with either blend kernel
+SINE_REACH = 1.65
+
+
+def _presence(phi, contact: Contact, h, kernel: str = "erf"):
+    """Truncated smoothed indicator of a body: 1 inside, 1/2 on its surface, 0 far out,
+    with the model's blend kernel (:func:`refmap.blend.presence`)."""
+    if kernel == "erf":
+        return blend.presence(phi, "erf", contact.reach * h, contact.cutoff)
+    return blend.presence(phi, kernel, SINE_REACH * contact.reach * h)
 
 
 def _take(field, idx):
@@ -326,6 +338,7 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     if N == 0:
         return out
     K = _stiffness(contact, params)
+    kern = model.numerics.blend
     phic = d["phic"]
     if N >= 2:
         a, b = _two_nearest(phic)
@@ -337,7 +350,7 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
         nn = nx_ * nx_ + ny_ * ny_
         inv = jnp.where(nn > 1e-12, 1.0 / jnp.where(nn > 1e-12, nn, 1.0), 0.0)
         Pi = (
-            K * _kernel(pa - pb, contact, h) * _presence(pa, contact, h) * _presence(pb, contact, h)
+            K * _kernel(pa - pb, contact, h) * _presence(pa, contact, h, kern) * _presence(pb, contact, h, kern)
         )
         # no pair pressure on the corners of non-periodic edges: their push on the node
         # outside the domain would be lost, and with it the pair's momentum balance
@@ -370,7 +383,7 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
                 sl = tuple(sl)
                 pw = jnp.asarray(phi_w[sl])
                 ph = phic[(slice(None),) + sl]
-                pres = _presence(ph, contact, h) * _presence(ph + 2.0 * pw, contact, h)
+                pres = _presence(ph, contact, h, kern) * _presence(ph + 2.0 * pw, contact, h, kern)
                 Pw = K * _kernel(-2.0 * pw, contact, h) * jnp.sum(pres, axis=0)
                 sxx = sxx.at[sl].add(-Pw * wx * wx)
                 sxy = sxy.at[sl].add(-Pw * wx * wy)
