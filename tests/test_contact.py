@@ -303,10 +303,49 @@ def test_wall_contact_keeps_a_falling_ball_out_of_the_floor(walls):
 
 
 # ---------------------------------------------------------------- scenarios
+def test_suspension_discs_are_apart_and_balanced():
+    """The suspension's 100 discs: equal radii covering 30 % of the box, no two closer than
+    0.07 (2 cells at 128^2), all 0.13 off the walls, 50 heavy (1.5) and 50 light (0.6),
+    deterministic; impossible packings are refused with the count named."""
+    from refmap.scenarios_fssi import suspension_discs
+
+    d = suspension_discs()
+    assert d == suspension_discs()
+    c = np.array([x[0] for x in d])
+    r = d[0][1]
+    assert len(d) == 100 and all(x[1] == r for x in d)
+    assert 100 * math.pi * r**2 == pytest.approx(0.3 * 16.0)
+    D = np.sqrt(((c[:, None] - c[None]) ** 2).sum(-1)) + 9.0 * np.eye(100)
+    assert D.min() - 2 * r > 0.07
+    assert np.all(np.abs(c) + r < 2.0 - 0.13)
+    assert sorted(x[2] for x in d) == [0.6] * 50 + [1.5] * 50
+    with pytest.raises(ValueError, match="400 discs"):
+        suspension_discs(400, fill=0.9)
+
+
+def test_suspension_short_run():
+    """``suspension`` (100 discs) at 48^2 for 8 steps: finite, every disc keeps its own
+    nodes (no node inside two discs) and the whole suspension starts to fall (the fluid
+    starts uniform, so every disc first falls at g, heavy or light)."""
+    case = get_case("suspension", 48)
+    assert len(case.solids) == 100
+    model, params = case.build()
+    s0 = _init(model, params)
+    s = jax.jit(lambda s: model.run_steps(s, params, 8))(s0)
+    for f in ("v", "rho_f", "xi", "phi"):
+        assert np.all(np.isfinite(np.asarray(getattr(s, f))))
+    inside = np.asarray(s.phi) < 0
+    assert inside.sum(axis=0).max() == 1
+    assert np.all(inside.sum(axis=(1, 2)) > 0)
+    ws = np.asarray(model.derived(s, params)["ws_n"])
+    vy = (ws * np.asarray(s.v[1])[None]).sum(axis=(1, 2)) / ws.sum(axis=(1, 2))
+    assert np.all(vy < 0.0)
+
+
 def test_fssi_scenarios_are_registered_with_contact():
-    for name in ("two_balls", "ball_stick", "settle"):
+    for name in ("two_balls", "ball_stick", "settle", "suspension"):
         assert name in SCENARIOS
-        case = get_case(name, 32)
+        case = get_case(name, 64 if name == "suspension" else 32)  # its discs: 4 cells at 64^2
         assert isinstance(case.contact, Contact)
         assert case.to_dict()["contact"]["strength"] == case.contact.strength
         model, _ = case.build()
