@@ -36,25 +36,43 @@ from refmap.state import State
 AXIS = "x"
 
 
+def request_cpu_devices(n_devices: int) -> bool:
+    """Ask JAX for ``n_devices`` (virtual) CPU devices; True if it took effect.
+
+    Works only before JAX has run anything (it sets ``jax_num_cpu_devices``); afterwards, or
+    when ``XLA_FLAGS`` already sets ``--xla_force_host_platform_device_count``, it does
+    nothing and :func:`check_devices` reports a shortfall.  A GPU backend is not affected.
+    """
+    import os
+
+    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return False
+    try:
+        jax.config.update("jax_num_cpu_devices", int(n_devices))
+    except RuntimeError:  # backends already initialised
+        return False
+    return True
+
+
 def check_devices(n_devices, nx: int | None = None) -> int:
     """``n_devices`` as an int, else ValueError naming the value: an integer >= 1, at most
     the number of devices JAX sees, dividing ``nx`` (when given).  Nothing is compiled."""
     if isinstance(n_devices, bool) or not isinstance(n_devices, (int, np.integer)) or n_devices < 1:
         raise ValueError(f"devices must be an integer >= 1, got {n_devices!r}")
     n_devices = int(n_devices)
+    if nx is not None and nx % n_devices:
+        near = [c for c in (n_devices * (nx // n_devices), n_devices * (nx // n_devices + 1)) if c > 0]
+        raise ValueError(f"the grid's nx = {nx} is not divisible by devices = {n_devices} "
+                         f"(the x axis is split evenly over the devices); use nx = "
+                         f"{' or '.join(map(str, near))}, or another device count")
     have = jax.device_count()
     if n_devices > have:
         hint = ""
         if jax.default_backend() == "cpu":
             hint = (f"; on a CPU set XLA_FLAGS=--xla_force_host_platform_device_count={n_devices} "
-                    "before JAX is imported (before `import refmap`)")
+                    "before JAX runs anything, or call refmap.sharding.request_cpu_devices first")
         raise ValueError(f"devices = {n_devices} but JAX sees only {have} "
                          f"{jax.default_backend()} device(s){hint}")
-    if nx is not None and nx % n_devices:
-        lo = n_devices * (nx // n_devices)
-        raise ValueError(f"the grid's nx = {nx} is not divisible by devices = {n_devices} "
-                         f"(the x axis is split evenly over the devices); use nx = {lo} or "
-                         f"{lo + n_devices}, or another device count")
     return n_devices
 
 
@@ -134,5 +152,5 @@ def sharded_run_steps(model, devices, n_steps: int, dt=None):
                    in_shardings=(state_shardings(mesh), rep), out_shardings=state_shardings(mesh))
 
 
-__all__ = ["AXIS", "check_devices", "make_mesh", "state_shardings", "replicated", "shard_state",
+__all__ = ["AXIS", "request_cpu_devices", "check_devices", "make_mesh", "state_shardings", "replicated", "shard_state",
            "gather_state", "sharded_advance", "sharded_run_steps"]
