@@ -60,6 +60,8 @@ def run_cmd(
                                    "deleted; other files are kept)"),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
     checkpoint_every: int = typer.Option(1, "--checkpoint-every", min=1, help="frames between checkpoints"),
+    devices: int = typer.Option(None, "--devices", help="split the grid along x over this many devices "
+                                "(nx must be divisible by it; on a CPU, virtual devices)"),
 ):
     """Run a scenario or a case file, writing HDF5 frames, an XDMF index, diagnostics and pictures.
 
@@ -71,6 +73,7 @@ def run_cmd(
     from refmap.scenarios import get_case
     from refmap.simulation import Simulation
 
+    _request_devices(devices)
     try:
         if is_case_file(scenario):
             plan = load_run(scenario, {"n": n, "t_end": t_end, "frames": frames, "cfl": cfl,
@@ -94,7 +97,7 @@ def run_cmd(
         case.validate()
         sim = Simulation(case, out_dir, progress=progress, pictures=pictures, movie=movie,
                          overwrite=overwrite, command=" ".join(["refmap"] + sys.argv[1:]),
-                         checkpoint_every=checkpoint_every)
+                         checkpoint_every=checkpoint_every, devices=devices)
     except (CaseError, ValueError, FileExistsError) as e:
         typer.secho(f"error: {e}", fg="red", err=True)
         raise typer.Exit(2) from None
@@ -105,6 +108,14 @@ def run_cmd(
     )
     if sim.conservation_text():
         typer.echo(sim.conservation_text())
+
+
+def _request_devices(devices) -> None:
+    """Before JAX starts: on a CPU, ask for ``devices`` virtual devices (refmap.sharding)."""
+    if devices is not None and devices > 1:
+        from refmap.sharding import request_cpu_devices
+
+        request_cpu_devices(devices)
 
 
 def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
@@ -153,6 +164,7 @@ def resume_cmd(
     movie: bool = typer.Option(False, "--movie/--no-movie", help="also write an MP4 of the picture field"),
     pictures: bool = typer.Option(True, "--pictures/--no-pictures", help="write PNG snapshots"),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
+    devices: int = typer.Option(None, "--devices", help="split the grid along x over this many devices"),
 ):
     """Continue a run from its checkpoint (after Ctrl-C, a crash, or to extend it)."""
     from refmap.case import CaseError
@@ -161,10 +173,11 @@ def resume_cmd(
 
     if not run_dir.is_dir():
         _fail(f"no run folder '{run_dir}'")
+    _request_devices(devices)
     try:
         sim = Simulation.resume(run_dir, t_end=t_end, frames=frames, progress=progress,
                                 pictures=pictures, movie=movie, checkpoint_every=checkpoint_every,
-                                command=" ".join(["refmap"] + sys.argv[1:]))
+                                command=" ".join(["refmap"] + sys.argv[1:]), devices=devices)
     except (CheckpointError, CaseError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
     r = sim._resume_from

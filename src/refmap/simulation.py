@@ -115,11 +115,15 @@ class Simulation:
     solids; finite values, a positive density) and lie before ``case.t_end``; frame 0 is that
     state at its own time t0 and the ``case.frames`` further frames are spread evenly over
     (t0, t_end].  ``case.initial_velocity`` is not used then (a warning says so).
+
+    ``devices`` (an integer, default None: one device) splits the grid fields along x over
+    that many devices (:mod:`refmap.sharding`; the grid's nx must be divisible by it).  The
+    results equal the one-device run's to round-off (docs/parallel.md).
     """
 
     def __init__(self, case: Case, out_dir=None, progress: bool = True, pictures: bool = True,
                  movie: bool = False, overwrite: bool = False, command: str | None = None,
-                 checkpoint_every: int | None = 1, state=None):
+                 checkpoint_every: int | None = 1, state=None, devices: int | None = None):
         if checkpoint_every is not None and (isinstance(checkpoint_every, bool)
                                              or not isinstance(checkpoint_every, int)
                                              or checkpoint_every < 1):
@@ -128,6 +132,11 @@ class Simulation:
         self._resume_from = None  # set by Simulation.resume
         self._done = None  # counters of the last completed frame (for checkpoints)
         self.case = case.validate()
+        self.devices = None
+        if devices is not None:
+            from refmap.sharding import check_devices
+
+            self.devices = check_devices(devices, case.grid.nx)
         self.model, self.params = case.build()
         self.out_dir = Path(out_dir) if out_dir is not None else None
         self.progress = progress
@@ -135,7 +144,12 @@ class Simulation:
         self.movie = movie
         self.overwrite = overwrite
         self.command = command if command is not None else " ".join(sys.argv)
-        self._advance = jax.jit(self.model.advance, static_argnames=("max_steps",))
+        if self.devices is None:
+            self._advance = jax.jit(self.model.advance, static_argnames=("max_steps",))
+        else:
+            from refmap.sharding import sharded_advance
+
+            self._advance = sharded_advance(self.model, self.devices)
         model = self.model
 
         def outputs(state, params):  # one compilation for everything a frame writes
@@ -213,6 +227,10 @@ class Simulation:
             self._dt_stats = (float("inf") if dmin is None else float(dmin), 0.0 if dmax is None else float(dmax))
             self._diag_rows_base = int(resumed["diag_rows"]) - len(self.rows)
             self._growth_reference(self._first_diagnostics_row(state))
+        if self.devices is not None:
+            from refmap.sharding import shard_state
+
+            state = shard_state(state, self._advance.mesh)
         self._frame_times = [float(x) for x in times]
         last = (resumed["last_dt"], resumed["last_limit"]) if resumed is not None else (0.0, "")
         self._mark_done(first - 1, state, total_steps, t0, *last)
@@ -353,7 +371,7 @@ class Simulation:
     def resume(cls, run_dir, *, case: Case | None = None, t_end: float | None = None,
                frames: int | None = None, progress: bool = True, pictures: bool = True,
                movie: bool = False, command: str | None = None,
-               checkpoint_every: int | None = 1) -> Simulation:
+               checkpoint_every: int | None = 1, devices: int | None = None) -> Simulation:
         """A Simulation that continues ``run_dir`` from its checkpoint; call ``.run()``.
 
         The case is rebuilt from the checkpoint (see :func:`refmap.checkpoint.rebuild_case`;
@@ -362,7 +380,8 @@ class Simulation:
         uninterrupted run would, bit for bit.  ``t_end`` (and optionally ``frames``, the
         number of intervals from 0 to ``t_end``; default: the same frame spacing) extends
         the run: frames already written are kept, the remaining ones follow the new
-        schedule.  Frames written after the checkpoint are recomputed.
+        schedule.  Frames written after the checkpoint are recomputed.  ``devices``: see
+        :class:`Simulation` (a run may be resumed on another number of devices).
         """
         from refmap.case import CaseError
         from refmap.checkpoint import CheckpointError, load_checkpoint, rebuild_case
@@ -386,7 +405,7 @@ class Simulation:
             schedule = schedule[: nxt - 1] + [float(x) for x in new if x > t_now + tol]
             case = case.replace(t_end=new_t_end, frames=len(schedule))
         sim = cls(case, run_dir, progress=progress, pictures=pictures, movie=movie,
-                  command=command, checkpoint_every=checkpoint_every)
+                  command=command, checkpoint_every=checkpoint_every, devices=devices)
         g = case.grid
         want = {"v": (2, g.nx, g.ny), "rho_f": (g.nx, g.ny), "xi": (sim.model.n_solids, 2, g.nx, g.ny),
                 "phi": (sim.model.n_solids, g.nx, g.ny)}
