@@ -63,13 +63,24 @@ def node_average(fc):
     return 0.25 * (fc[..., :-1, :-1] + fc[..., 1:, :-1] + fc[..., :-1, 1:] + fc[..., 1:, 1:])
 
 
+#: relative margin below which the two ENO smoothness indicators count as tied (see _eno2)
+_ENO_TIE = 1e-11
+
+
 def _eno2(p0, p1, p2, p3):
     """Second-order ENO difference at p1 towards p2 (times 2h), as in the thesis's code.
 
     Takes the one-sided second-order difference 3 p1 - 4 p2 + p3 when the data on that side
     is smoother, and the centred p0 - p2 otherwise.
     """
-    return jnp.where(jnp.abs(p0 - 2 * p1 + p2) > jnp.abs(p1 - 2 * p2 + p3), 3 * p1 - 4 * p2 + p3, p0 - p2)
+    # Ties go to the centred difference.  Ties are structural, not rare: next to a wall or a
+    # prescribed-velocity edge the odd ghost values make both second differences equal in
+    # exact arithmetic, so a plain ``>`` lets round-off pick the stencil, and the two
+    # stencils differ by O(1) there.  A margin of _ENO_TIE times the data's magnitude makes
+    # such near-ties centred whatever the rounding (e.g. of a sum split over devices).
+    scale = jnp.abs(p0) + jnp.abs(p1) + jnp.abs(p2) + jnp.abs(p3)
+    one_sided = jnp.abs(p0 - 2 * p1 + p2) > jnp.abs(p1 - 2 * p2 + p3) + _ENO_TIE * scale
+    return jnp.where(one_sided, 3 * p1 - 4 * p2 + p3, p0 - p2)
 
 
 def _shift(fp, axis, k, g):
