@@ -312,3 +312,34 @@ def test_with_traced_and_replace_reject_what_the_model_lacks(fluid_model):
         rd.replace_law(Params(), 0, G=1.0)
     with pytest.raises(ValueError, match=r"Disc has no field\(s\) \['r'\]"):
         rd.replace_shape(Disc((0.0, 0.0), 0.5), r=1.0)
+
+
+# ----------------------------------------------------------------------------- examples
+def _example(name):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"_example_{name}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_inverse_stiffness_example_recovers_G(tmp_path):
+    """examples/inverse_stiffness.py --quick: G from synthetic observations (made at the
+    true G) to 1 % (the issue's requirement; it reaches far better, see the docs)."""
+    pytest.importorskip("optax")
+    r = _example("inverse_stiffness").main(["--quick", "--out", str(tmp_path), "--no-plot"])
+    assert r["relative_error"] < 0.01, r["G"]
+    assert r["iterations"] <= 30
+    assert (tmp_path / "inverse_stiffness.json").exists()
+
+
+def test_inverse_design_example_finds_the_controls(tmp_path):
+    """examples/inverse_design.py --quick: the inflow speed and gravity that put the
+    centroid on the target (made with known controls), each to 1 %."""
+    pytest.importorskip("optax")
+    r = _example("inverse_design").main(["--quick", "--out", str(tmp_path), "--no-plot"])
+    assert r["relative_error"]["U"] < 0.01 and r["relative_error"]["g"] < 0.01, (r["U"], r["g"])
+    assert (tmp_path / "inverse_design.json").exists()
