@@ -285,6 +285,12 @@ def test_rollout_rejects_bad_input(fluid_model):
         rd.rollout(model, state, params, 2, 0.01, sweeps=-1)
 
 
+def test_from_scenario_name():
+    model, state, params = rd.from_case("circle", n=16)
+    assert model.grid.nx == 16 and model.numerics.fixed_smooth_sweeps == 80
+    assert state.xi.shape == (1, 2, 16, 16) and params.laws[0].G == 10.0
+
+
 def test_differentiable_model_fixes_the_sweeps():
     model = Model(Grid(12, 12), (Solid(Disc((0.0, 0.0), 0.5), NeoHookean(G=1.0, kappa=1.0)),),
                   numerics=Numerics(smooth_max_sweeps=30))

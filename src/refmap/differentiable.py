@@ -248,9 +248,14 @@ def replace_fluid(params: Params, **values) -> Params:
 
 
 # ----------------------------------------------------------------------------- set-up
-def from_case(case, sweeps: int | None = None):
-    """``(model, state, params)`` of a :class:`refmap.case.Case` (validated), the model
-    with fixed smoothing sweeps (:func:`differentiable_model`)."""
+def from_case(case, sweeps: int | None = None, n: int = 64):
+    """``(model, state, params)`` of a :class:`refmap.case.Case` (validated) or of a
+    scenario named by ``case`` at grid size ``n``, the model with fixed smoothing sweeps
+    (:func:`differentiable_model`)."""
+    if isinstance(case, str):
+        from refmap.scenarios import get_case
+
+        case = get_case(case, n)
     model, params = case.build()
     model = differentiable_model(model, sweeps)
     state = jax.jit(model.initial_state)(params)
