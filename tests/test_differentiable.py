@@ -8,8 +8,8 @@ summed terms, divided by 2 eps: ~1e-11 of the loss's scale.  Both are far below 
 larger mismatch is a wrong derivative, or a discrete switch (an ENO stencil, a mask) inside
 [theta - eps, theta + eps].  The set-ups are chosen smooth (smooth initial velocity fields,
 no node on a mask's edge) so that no switch falls there; ties of the ENO indicators next to
-edges, which round-off used to break at random (loss jumps of 1e-7 for parameter changes of
-1e-9), are now broken deterministically (refmap.operators._eno2).
+edges, which round-off used to break at random (loss jumps of 1e-7 for relative parameter
+changes of 1e-7), are now broken deterministically (refmap.operators._eno2).
 
 Losses are linear functionals of the final state with fixed random weights: every field and
 every node contributes, and a linear loss keeps round-off in the FD quotient small.
