@@ -245,7 +245,8 @@ class BoundaryConditions:
                 a, b, c = (self._extend(arr, f0.shape[-1]) for arr in (a, b, c))
             g = a * fm + b * f0 + c * f1
             for seg, m, val, how in rule.dirichlet:
-                d = jnp.asarray(np.where(m, val, 0.0))
+                # jnp.where: the values may be traced (refmap.differentiable.with_traced)
+                d = jnp.where(jnp.asarray(m), val, 0.0)
                 if axis == 1:
                     d = self._extend(d, f0.shape[-1])
                 if how is None:

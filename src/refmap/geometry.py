@@ -142,7 +142,15 @@ def _to_local(X, Y, center, angle):
 
 
 def _norm(u, v):
-    return jnp.sqrt(u * u + v * v)
+    """``sqrt(u^2 + v^2)`` whose derivative is finite (zero) where u = v = 0.
+
+    The plain square root has an infinite derivative at 0 (a node at a disc's centre, every
+    node inside a rectangle or on a capsule's axis), and reverse mode multiplies it by a
+    zero cotangent: NaN.  The inner ``where`` keeps the square root away from 0 in the
+    derivative; the outer one gives exactly ``sqrt(0) = 0`` (forward values unchanged)."""
+    r2 = u * u + v * v
+    pos = r2 > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)
 
 
 def _rotated_extent(hx: float, hy: float, angle: float) -> tuple[float, float]:

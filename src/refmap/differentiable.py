@@ -1,0 +1,355 @@
+"""Reverse-mode differentiable runs: fixed steps, ``lax.scan``, rematerialisation.
+
+:meth:`refmap.model.Model.advance` picks its step size adaptively inside a
+``lax.while_loop``, and the smoothing of the extrapolated reference maps stops adaptively
+inside another; JAX cannot reverse-differentiate a ``while_loop``.  This module runs the
+same step a *fixed, precomputed* number of times with a *fixed* step size, smoothing with a
+fixed number of sweeps, so that ``jax.grad`` (and ``jax.vjp``) go through the whole run::
+
+    from refmap import differentiable as rd
+
+    model, state, params = rd.from_case(get_case("circle", 24))
+    dt = rd.stable_dt(model, state, params)           # the adaptive choice, held constant
+
+    def loss(G):
+        p = rd.replace_law(params, 0, G=G)
+        out = rd.rollout(model, state, p, n_steps=20, dt=dt,
+                         loss=lambda s: jnp.sum(s.v ** 2))
+        return out.loss
+
+    jax.grad(loss)(10.0)
+
+Pieces:
+
+* :func:`rollout` -- ``n_steps`` steps of size ``dt`` in a nested ``lax.scan``; with
+  ``checkpoint="sqrt"`` (default) the steps are grouped in ``ceil(sqrt(n))`` chunks, the
+  chunks and the steps are rematerialised (``jax.checkpoint``), so the memory of the
+  backward pass grows like ``sqrt(n)`` states instead of ``n`` steps' intermediates;
+* :func:`differentiable_model` -- a copy of a model whose map smoothing uses fixed sweeps
+  (``Numerics.fixed_smooth_sweeps``; :func:`rollout` applies it itself);
+* :func:`with_traced` -- a copy of a model in which static parts of the case take traced
+  values: solid shapes (e.g. a disc's radius), the contact strength, and the speed of the
+  prescribed edge velocities (an inflow); :func:`replace_shape` builds a shape with traced
+  parameters;
+* :func:`replace_law`, :func:`replace_fluid` -- parameter pytrees with one value replaced
+  (traced values welcome);
+* :func:`from_case` -- model, initial state and parameters of a :class:`refmap.case.Case`;
+  :func:`stable_dt` -- the adaptive step of the initial state, to hold constant.
+
+What is differentiable, what has a zero derivative by design (the discrete choices: ENO
+stencils, nearest solid, extrapolation masks, clipping) and the measured costs are in
+``docs/differentiable.md``.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from refmap.state import Params, State
+
+__all__ = [
+    "CHECKPOINTS",
+    "RolloutResult",
+    "differentiable_model",
+    "from_case",
+    "replace_fluid",
+    "replace_law",
+    "replace_shape",
+    "rollout",
+    "stable_dt",
+    "with_traced",
+]
+
+#: the rematerialisation strategies of :func:`rollout`
+CHECKPOINTS = ("sqrt", "step", None)
+
+
+class RolloutResult(NamedTuple):
+    """What :func:`rollout` returns.
+
+    ``state``: the final state; ``loss``: ``loss(state)`` (or ``loss(state, observations)``
+    when ``observe`` was given), None without a loss; ``observations``: the stacked values
+    of ``observe(state)`` after every step (leading axis ``n_steps``), None without it."""
+
+    state: State
+    loss: Any
+    observations: Any
+
+
+# ----------------------------------------------------------------------------- the model
+def differentiable_model(model, sweeps: int | None = None):
+    """``model`` with a fixed number of smoothing sweeps (no ``while_loop`` in the step).
+
+    ``sweeps`` defaults to ``Numerics.fixed_smooth_sweeps`` if set, else
+    ``Numerics.smooth_max_sweeps`` (the adaptive rule seldom stops before that; see
+    :func:`refmap.extrapolation.smooth_extrapolated`).  Returns ``model`` itself when it
+    already smooths with that fixed count, otherwise a shallow copy with replaced numerics
+    (the traced parts set by :func:`with_traced` are kept).
+    """
+    n = model.numerics
+    if sweeps is None:
+        sweeps = n.fixed_smooth_sweeps if n.fixed_smooth_sweeps is not None else n.smooth_max_sweeps
+    if not isinstance(sweeps, int) or isinstance(sweeps, bool) or sweeps < 0:
+        raise ValueError(f"differentiable_model: sweeps must be an integer >= 0, got {sweeps!r}")
+    if n.fixed_smooth_sweeps == sweeps:
+        return model
+    out = copy.copy(model)
+    out.numerics = dataclasses.replace(n, fixed_smooth_sweeps=sweeps)
+    return out
+
+
+def _check_differentiable(model):
+    """ValueError naming what keeps ``model``'s step from being reverse-differentiable."""
+    n = model.numerics
+    if n.fixed_smooth_sweeps is None:
+        raise ValueError(
+            "the model smooths its extrapolated maps with the adaptive stopping rule (a "
+            "lax.while_loop, not reverse-differentiable): Numerics.fixed_smooth_sweeps is None; "
+            "use refmap.differentiable.differentiable_model(model)"
+        )
+
+
+class _TracedShape:
+    """A shape whose parameters may be traced: evaluates ``shape._sdf`` directly (the
+    compiled ``Shape.__call__`` treats its float fields as static keys)."""
+
+    def __init__(self, shape):
+        self.shape = shape
+
+    def __call__(self, X, Y):
+        X, Y = jnp.broadcast_arrays(jnp.asarray(X, dtype=float), jnp.asarray(Y, dtype=float))
+        return self.shape._sdf(X, Y)
+
+    def __repr__(self):
+        return f"traced({self.shape!r})"
+
+
+def replace_shape(shape, **fields):
+    """A copy of the (frozen dataclass) ``shape`` with ``fields`` replaced by values that may
+    be traced, e.g. ``replace_shape(Disc((0, 0), 0.5), radius=r)``.  The constructor's
+    checks are skipped (they need concrete numbers); nested shapes are replaced with nested
+    calls.  Use the result through :func:`with_traced`."""
+    if not dataclasses.is_dataclass(shape):
+        raise TypeError(f"replace_shape: {shape!r} is not a dataclass shape")
+    names = {f.name for f in dataclasses.fields(shape)}
+    unknown = sorted(set(fields) - names)
+    if unknown:
+        raise ValueError(f"replace_shape: {type(shape).__name__} has no field(s) {unknown}; "
+                         f"its fields are {sorted(names)}")
+    out = copy.copy(shape)
+    for k, v in fields.items():
+        object.__setattr__(out, k, v)
+    return out
+
+
+def with_traced(model, shapes: Mapping[int, Any] | None = None, contact_strength=None,
+                edge_velocity_scale=None):
+    """A shallow copy of ``model`` in which static parts of the case take traced values.
+
+    * ``shapes``: ``{k: shape}`` replaces solid k's reference shape (its phi0, used for the
+      initial level set and for the pinning of every step), e.g. a disc of traced radius
+      from :func:`replace_shape`.  The solid's initial map, its anchor and the gluing to
+      the walls (decided on the concrete shape at t = 0) stay as they are;
+    * ``contact_strength``: the strength of every :class:`refmap.contact.Contact` body force;
+    * ``edge_velocity_scale``: a factor multiplying every prescribed edge velocity (the
+      ``velocity`` segments and moving walls of :mod:`refmap.boundary`): an inflow of speed
+      ``scale * U``.  ``d/d scale`` at 1 is ``U`` times the derivative with respect to U.
+
+    Start from this model's :meth:`Model.initial_state` to differentiate through the
+    initial state too (the level set of a traced shape).
+    """
+    out = copy.copy(model)
+    if shapes:
+        solids = list(out.solids)
+        for k, shape in dict(shapes).items():
+            if not (isinstance(k, int) and 0 <= k < len(solids)):
+                raise ValueError(f"with_traced: shapes key {k!r} is not a solid index "
+                                 f"(the model has {len(solids)} solids)")
+            s = copy.copy(solids[k])
+            object.__setattr__(s, "shape", _TracedShape(shape))
+            solids[k] = s
+        out.solids = tuple(solids)
+    if contact_strength is not None:
+        from refmap.contact import Contact
+
+        forces = []
+        found = False
+        for f in out.body_forces:
+            if isinstance(f, Contact):
+                f = copy.copy(f)
+                object.__setattr__(f, "strength", contact_strength)
+                found = True
+            forces.append(f)
+        if not found:
+            raise ValueError("with_traced: contact_strength given but the model has no Contact body force")
+        out.body_forces = tuple(forces)
+    if edge_velocity_scale is not None:
+        bc = copy.copy(out.bc)
+        rules = {}
+        found = False
+        for key, rule in bc._rules.items():
+            rule = copy.copy(rule)
+            dirichlet = []
+            for seg, m, val, how in rule.dirichlet:
+                if how == "odd":  # a prescribed velocity (not the density at an inflow)
+                    val = val * edge_velocity_scale
+                    found = True
+                dirichlet.append((seg, m, val, how))
+            rule.dirichlet = dirichlet
+            rules[key] = rule
+        if not found:
+            raise ValueError("with_traced: edge_velocity_scale given but no edge of the model "
+                             "prescribes a nonzero velocity")
+        bc._rules = rules
+        out.bc = bc
+    return out
+
+
+# ----------------------------------------------------------------------------- parameters
+def replace_law(params: Params, k: int, **values) -> Params:
+    """``params`` with solid k's law fields replaced (e.g. ``G=``, ``kappa=``, ``rho0=``);
+    the values may be traced.  Law constructors' checks are skipped for traced values."""
+    laws = list(params.laws)
+    if not (0 <= k < len(laws)):
+        raise ValueError(f"replace_law: no solid {k} (params has {len(laws)} laws)")
+    law = laws[k]
+    names = {f.name for f in dataclasses.fields(law)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise ValueError(f"replace_law: {type(law).__name__} has no field(s) {unknown}; "
+                         f"its fields are {sorted(names)}")
+    new = copy.copy(law)
+    for name, v in values.items():
+        object.__setattr__(new, name, v)
+    laws[k] = new
+    return dataclasses.replace(params, laws=tuple(laws))
+
+
+def replace_fluid(params: Params, **values) -> Params:
+    """``params`` with fluid fields replaced (``eta``, ``lambda_f``, ``rho0``, ...)."""
+    fl = params.fluid
+    names = {f.name for f in dataclasses.fields(fl)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise ValueError(f"replace_fluid: FluidParams has no field(s) {unknown}; "
+                         f"its fields are {sorted(names)}")
+    new = copy.copy(fl)
+    for name, v in values.items():
+        object.__setattr__(new, name, v)
+    return dataclasses.replace(params, fluid=new)
+
+
+# ----------------------------------------------------------------------------- set-up
+def from_case(case, sweeps: int | None = None, n: int = 64):
+    """``(model, state, params)`` of a :class:`refmap.case.Case` (validated) or of a
+    scenario named by ``case`` at grid size ``n``, the model with fixed smoothing sweeps
+    (:func:`differentiable_model`)."""
+    if isinstance(case, str):
+        from refmap.scenarios import get_case
+
+        case = get_case(case, n)
+    model, params = case.build()
+    model = differentiable_model(model, sweeps)
+    state = jax.jit(model.initial_state)(params)
+    return model, state, params
+
+
+def stable_dt(model, state: State, params: Params) -> float:
+    """The adaptive step (``Model.time_step``) of ``state``, as a Python float.  A
+    differentiable run holds it constant: the step size then does not depend on the
+    parameters, so its (piecewise) derivative is not part of the gradient."""
+    dt, _ = jax.jit(model.time_step)(state, params)
+    return float(dt)
+
+
+# ----------------------------------------------------------------------------- the run
+def _chunks(n_steps: int, checkpoint):
+    """(chunk length, number of full chunks, remainder) of the outer scan."""
+    if checkpoint != "sqrt":
+        return n_steps, 1, 0
+    c = max(1, math.isqrt(n_steps - 1) + 1) if n_steps > 1 else 1  # ceil(sqrt(n))
+    return c, n_steps // c, n_steps % c
+
+
+def rollout(model, state: State, params: Params, n_steps: int, dt,
+            loss: Callable | None = None, observe: Callable | None = None,
+            checkpoint: str | None = "sqrt", sweeps: int | None = None) -> RolloutResult:
+    """``n_steps`` steps of ``model`` of fixed size ``dt``, reverse-differentiable.
+
+    Args:
+        model: a :class:`refmap.model.Model` (or one from :func:`with_traced`); it is run
+            with fixed smoothing sweeps (:func:`differentiable_model`: ``sweeps``, else
+            ``fixed_smooth_sweeps``, else ``smooth_max_sweeps``).
+        state, params: the initial state and the parameters (the things to differentiate
+            with respect to: ``params`` leaves, ``state.v``, ...).
+        n_steps: number of steps (a Python int >= 1: static).
+        dt: the step size (held constant, not chosen adaptively: see :func:`stable_dt`;
+            it may be traced).
+        loss: optional ``loss(final_state)`` -> scalar, or ``loss(final_state,
+            observations)`` when ``observe`` is given.
+        observe: optional ``observe(state)`` -> pytree of arrays, recorded after every
+            step (stacked along a new leading axis of length ``n_steps``).
+        checkpoint: ``"sqrt"`` (default): an outer scan over ``~sqrt(n)`` chunks of
+            ``~sqrt(n)`` steps, each chunk and each step rematerialised in the backward pass,
+            which then keeps ``~2 sqrt(n)`` states and one step's intermediates; ``"step"``:
+            one scan, each step rematerialised (``n`` states kept); ``None``: no
+            rematerialisation (every step's intermediates kept: fastest, most memory).
+
+    Returns:
+        :class:`RolloutResult` ``(state, loss, observations)``.
+    """
+    if isinstance(n_steps, bool) or not isinstance(n_steps, int) or n_steps < 1:
+        raise ValueError(f"rollout: n_steps must be an integer >= 1, got {n_steps!r}")
+    if checkpoint not in CHECKPOINTS:
+        raise ValueError(f"rollout: checkpoint must be one of {CHECKPOINTS}, got {checkpoint!r}")
+    if isinstance(dt, (int, float)) and not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"rollout: dt must be a finite number > 0, got {dt!r}")
+    if loss is not None and not callable(loss):
+        raise ValueError(f"rollout: loss must be callable, got {loss!r}")
+    if observe is not None and not callable(observe):
+        raise ValueError(f"rollout: observe must be callable, got {observe!r}")
+    model = differentiable_model(model, sweeps)
+    _check_differentiable(model)
+    dt = jnp.asarray(dt, dtype=jnp.float64)
+
+    def one(s):
+        return model.step(s, params, dt)
+
+    if checkpoint is not None:
+        one = jax.checkpoint(one)
+
+    def body(s, _):
+        s = one(s)
+        return s, (observe(s) if observe is not None else None)
+
+    def run(s, length):
+        return lax.scan(body, s, None, length=length)
+
+    chunk, n_full, rem = _chunks(n_steps, checkpoint)
+    if checkpoint == "sqrt":
+        inner = jax.checkpoint(lambda s: run(s, chunk))
+
+        def outer(s, _):
+            return inner(s)
+
+        s, obs = lax.scan(outer, state, None, length=n_full)
+        if observe is not None:
+            obs = jax.tree_util.tree_map(lambda a: a.reshape((n_full * chunk,) + a.shape[2:]), obs)
+        if rem:
+            s, obs_r = jax.checkpoint(lambda s: run(s, rem))(s)
+            if observe is not None:
+                obs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), obs, obs_r)
+    else:
+        s, obs = run(state, n_steps)
+    value = None
+    if loss is not None:
+        value = loss(s, obs) if observe is not None else loss(s)
+    return RolloutResult(s, value, obs)
