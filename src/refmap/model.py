@@ -142,7 +142,8 @@ class Model:
         self.bc = BoundaryConditions(grid, self.boundary)
         self.h = grid.h
         self.implicit_viscosity = (
-            ImplicitViscosity(self, rtol=self.numerics.viscosity_rtol)
+            ImplicitViscosity(self, rtol=self.numerics.viscosity_rtol,
+                              preconditioner=self.numerics.viscosity_preconditioner)
             if self.numerics.viscosity == "implicit" else None
         )
         if initial_velocity is not None:  # node values (2, nx, ny), see initial_state

@@ -176,7 +176,9 @@ class Numerics:
     ``viscosity`` treats the fluid's viscous stress (``eta`` and ``bulk_viscosity``) and the
     ``extra_viscosity`` term ``"explicit"`` (default, forward Euler as everything else,
     limited to dt <= h^2 rho / (4 nu)) or ``"implicit"`` (backward Euler: one linear solve
-    per step to relative residual ``viscosity_rtol``, :mod:`refmap.viscosity`); then the
+    per step to relative residual ``viscosity_rtol``, preconditioned by the operator's
+    diagonal (``viscosity_preconditioner = "jacobi"``, default) or by a fast
+    constant-coefficient FFT/DCT solve (``"fast"``), :mod:`refmap.viscosity`); then the
     adaptive time step drops the viscous limit and reports the next one
     (:meth:`refmap.model.Model.time_step`; docs/method.md, "Implicit viscosity").
     """
@@ -203,7 +205,8 @@ class Numerics:
     compression: str = "centred"
     band_force: str = "local"
     viscosity: str = "explicit"
-    viscosity_rtol: float = 1e-8
+    viscosity_rtol: float = 1e-6
+    viscosity_preconditioner: str = "jacobi"
 
     def __post_init__(self):
         try:
@@ -220,6 +223,11 @@ class Numerics:
             )
         if not (isinstance(self.viscosity_rtol, (int, float)) and 0 < self.viscosity_rtol < 1):
             raise ValueError(f"numerics viscosity_rtol must be in (0, 1), got {self.viscosity_rtol!r}")
+        if self.viscosity_preconditioner not in ("jacobi", "fast"):
+            raise ValueError(
+                "numerics viscosity_preconditioner must be 'jacobi' or 'fast', "
+                f"got {self.viscosity_preconditioner!r}"
+            )
         if self.band_force not in ("local", "solid"):
             raise ValueError(
                 f"numerics band_force must be 'local' or 'solid', got {self.band_force!r}"
