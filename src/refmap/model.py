@@ -396,15 +396,15 @@ class Model:
         * convective: h / max(|u| + |v|).
 
         With ``Numerics.viscosity = "implicit"`` the viscous limit is dropped (backward
-        Euler), and so is the solids' part of the wave-damping limit: the reference maps
-        are then advected with the updated velocity (symplectic Euler), under which an
-        undamped elastic wave is stable up to the solid-wave limit.  Implicit damping alone
-        would not lift it: for a mode u' = v, rho v' = -M k^2 u - nu k^2 v, forward Euler for
-        u with backward Euler for the damping multiplies the energy by
-        (1 + dt^2 c^2 k^2) / (1 + dt nu k^2) per step, stable only for dt <= nu / c^2, as
-        explicit (measured: the circle at 64^2 gains energy at 1.0x the limit either way).
-        The fluid's sound-damping part stays (the density is still updated with the old
-        velocity).
+        Euler), and so is the wave-damping limit: the transported fields (reference maps,
+        fluid density) are then updated with the new velocity (symplectic Euler), under
+        which an undamped elastic or sound wave is stable up to its own CFL limit (solid
+        wave, fluid sound).  Implicit damping alone would not lift it: for a mode u' = v,
+        rho v' = -M k^2 u - nu k^2 v, forward Euler for u with backward Euler for the
+        damping multiplies the energy by (1 + dt^2 c^2 k^2) / (1 + dt nu k^2) per step,
+        stable only for dt <= nu / c^2, as explicit (measured: the circle at 64^2 gains
+        energy at 1.0x the limit either way; the lid-driven cavity at dt = h / (2 c) blows
+        up unless the density moves with the new velocity too).
         """
         h = self.h
         fl = params.fluid
@@ -419,13 +419,15 @@ class Model:
         nu = (fl.eta + fl.extra_viscosity + fl.bulk_viscosity) / rho_min
         vmax = jnp.max(jnp.abs(state.v[0]) + jnp.abs(state.v[1]))
         damping = jnp.where(
-            (fl.extra_viscosity > 0) & (len(params.laws) > 0) & (self.implicit_viscosity is None),
+            (fl.extra_viscosity > 0) & (len(params.laws) > 0),
             2.0 * fl.extra_viscosity / M_max,
             jnp.inf,
         )
         # the same bound for sound waves in the fluid, damped by eta and the extra viscosity
         nu_f = fl.eta + fl.extra_viscosity + fl.bulk_viscosity
         damping = jnp.minimum(damping, jnp.where(nu_f > 0, 2.0 * nu_f / fl.lambda_f, jnp.inf))
+        if self.implicit_viscosity is not None:  # symplectic transport: no damping limit
+            damping = jnp.asarray(jnp.inf)
         viscous = h * h / (4.0 * jnp.maximum(nu, 1e-30))
         if self.implicit_viscosity is not None:  # backward Euler: no viscous limit
             viscous = jnp.asarray(jnp.inf)
@@ -550,18 +552,29 @@ class Model:
         # there.  (Unweighted, a steady converging solid velocity -- at the edge of the
         # stick's anchor -- grows rho_f exponentially inside the solid, where no fluid
         # pressure pushes back: the thesis's stick at 128^2 blew up at t ~ 9.)
+        v_new = v + dt * acc
+        if implicit:
+            v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt)
+            # the transported fields move with the updated velocity (symplectic Euler, see
+            # time_step): the fluid density here, the reference maps below
+            vq, vqp = v_new, bc.pad_velocity(v_new, t + dt)
+        else:
+            vq, vqp = v, vp
         if n.compression == "corner":
             # the divergence at each node's top-right corner (a forward difference): the
             # negative transpose of the backward pressure gradient that div_node makes of
             # the bottom-left-node corner pressure (see Numerics), with that corner's fluid
             # fraction
-            compression = d["wf_c"][1:, 1:] * d["div_corner"][1:, 1:]
+            if implicit:
+                ux, _ = grad_corner(vqp[0, 1:-1, 1:-1], dx, dy)
+                _, vy = grad_corner(vqp[1, 1:-1, 1:-1], dx, dy)
+                div_c = ux + vy
+            else:
+                div_c = d["div_corner"]
+            compression = d["wf_c"][1:, 1:] * div_c[1:, 1:]
         else:
-            compression = d["wf_n"] * divergence_centered(vp[0], vp[1], dx, dy, g=2)
-        drho = advect(rp, v, dx, dy) - rho_f * compression
-        v_new = v + dt * acc
-        if implicit:
-            v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt)
+            compression = d["wf_n"] * divergence_centered(vqp[0], vqp[1], dx, dy, g=2)
+        drho = advect(rp, vq, dx, dy) - rho_f * compression
         rho_new = rho_f + dt * drho
 
         if self.n_solids == 0:
@@ -571,7 +584,7 @@ class Model:
         xip = bc.pad_affine(state.xi)
         # with implicit viscosity the maps move with the updated velocity (symplectic Euler
         # for the elastic waves: no damping needed for their stability, see time_step)
-        dxi = advect(xip, v_new if implicit else v, dx, dy)
+        dxi = advect(xip, vq, dx, dy)
         inside = (state.phi < (n.band - 3.0) * h)[:, None]
         xi_new = jnp.where(inside, state.xi + dt * dxi, state.xi)
 

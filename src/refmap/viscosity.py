@@ -153,7 +153,10 @@ class ImplicitViscosity:
         A = self.operator(rho, wf_c, fluid, t_new, dt)
         rhs = dt * viscous_force(self.model, v_star, t_new, fluid, wf_c)
         P = self.preconditioner(rho, wf_c, fluid, dt)
-        kw = dict(precond=P, rtol=self.rtol, maxiter=self.maxiter)
+        # an absolute floor (1e-14 of rho v*): a step whose viscous correction vanishes (a
+        # fluid at rest) must not chase round-off
+        atol = 1e-14 * jax.lax.stop_gradient(jnp.sqrt(jnp.sum((rho[None] * v_star) ** 2)))
+        kw = dict(precond=P, rtol=self.rtol, atol=atol, maxiter=self.maxiter)
         if return_info:
             delta, info = (cg if self.symmetric else bicgstab)(A, rhs, **kw)
             return v_star + delta, info
