@@ -16,20 +16,21 @@ with ``v*`` the velocity after every other (explicit) term and ``f``'s ghost val
 moving lids, inflow profiles) taken at ``t + dt``.  The ghosts of every edge condition are
 affine in the velocity, the first ghost layer a reflection of the node next to the edge
 (``-v_0 + 2 U`` at walls and prescribed velocities, ``+-v_0`` at slip walls, ``v_0`` at
-outflows), so ``f(v) = D v + b(t)`` with ``D`` linear and ``b`` the boundary data.  ``D`` is
-``-G^T C G`` for the corner gradient G (node -> corner, through those reflections) and C
-the pointwise positive semi-definite stress law ``w_f (eta, zeta)``: symmetric negative
-semi-definite (tested against a dense Jacobian), so
+outflows), so ``f(v) = D v + b(t)`` with ``D`` linear (applied as the tangent of f) and
+``b`` the boundary data, and
 
-    (rho - dt D) delta = dt f(v*),    v^{n+1} = v* + delta,
+    (rho - dt D) delta = dt f(v*),    v^{n+1} = v* + delta.
 
-is symmetric positive definite.  It is solved by conjugate gradients
-(:func:`refmap.linsolve.solve_spd`, implicit differentiation) preconditioned by the exact
-fast solve of the constant-coefficient operator ``rho_m - dt (a_x Dxx + a_y Dyy)`` for each
-velocity component (:class:`refmap.linsolve.SeparableSolver`; rho_m the mean density, the
-a's from eta, zeta and e with the mean fluid fraction, the edge reflections of each
-component taken edge by edge -- an edge with several kinds of segment takes the kind that
-covers most of it; a worse approximation costs iterations, never accuracy).
+``D`` is ``-G^T C G`` (G the corner gradient, C the pointwise stress law ``w_f (eta,
+zeta)``) on periodic axes: symmetric negative semi-definite, solved by conjugate
+gradients.  At other edges the ghost reflections enter the u-v coupling one-sidedly and
+``D`` is not symmetric (tested against a dense Jacobian): BiCGSTAB.  Both are wrapped in
+``custom_linear_solve`` (:mod:`refmap.linsolve`; derivatives by implicit
+differentiation).  Preconditioner: the operator's diagonal (``"jacobi"``, default) or the
+exact fast solve of the constant-coefficient ``rho_m - dt (a_x Dxx + a_y Dyy)`` for each
+velocity component (``"fast"``, :class:`refmap.linsolve.SeparableSolver`: FFT / DCT / DST
+per the edges' reflections; an edge with several kinds of segment takes the kind that
+covers most of it).  docs/method.md, "Implicit viscosity", has the measurements.
 """
 
 from __future__ import annotations
