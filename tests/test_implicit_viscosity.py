@@ -2,8 +2,8 @@
 
 import functools
 import math
-from dataclasses import replace as dataclasses_replace
 import tomllib
+from dataclasses import replace as dataclasses_replace
 
 import jax
 import jax.numpy as jnp
