@@ -45,7 +45,10 @@ EDGES = {
 # thesis set-up, ny = 20, implicit: measured L2 1.736e-2, max 4.398e-2, amplitude -1.84 %,
 # phase -0.0900 rad (explicit: 1.795e-2, 4.495e-2, -1.93 %, -0.0916); bounds +15 %
 THESIS_COUETTE_BOUNDS = (0.0200, 0.0506, 0.0212, 0.1035)
-ROTOR_DIFF = 1.0  # filled in from the measured value below
+# rotor 48^2, t = 0.5: implicit (97 steps) vs explicit (973): measured 6.27e-3 relative L2;
+# against an explicit run with dt / 4 the explicit differs by 1.47e-3 and the implicit by
+# 6.91e-3 (first order in dt: 10x the step, 4.7x the difference); bound +20 %
+ROTOR_DIFF = 7.5e-3
 FLUID = FluidParams(rho0=1.0, lambda_f=4.0, eta=0.3, extra_viscosity=0.05, bulk_viscosity=0.2)
 
 
@@ -316,9 +319,10 @@ def test_lid_cavity_implicit_follows_the_explicit_path():
 
 
 def test_rotor_implicit_close_to_explicit():
-    """The rotor at 48^2 from rest to t = 0.5: explicit (wave damping binds), implicit
-    (solid wave binds, ~3.5x the step).  The velocity fields differ by ROTOR_DIFF (relative
-    L2), of the order of the explicit run's own time error."""
+    """The rotor at 48^2 from rest to t = 0.5: explicit (wave damping binds, 973 steps),
+    implicit (solid wave binds, 97 steps).  The velocity fields differ by less than
+    ROTOR_DIFF (relative L2; measured values next to it): the implicit run's time error at
+    its 10x larger step, first order."""
     from refmap.scenarios import get_case
 
     out = {}
@@ -330,6 +334,6 @@ def test_rotor_implicit_close_to_explicit():
         assert bool(info["ok"])
         out[mode] = (np.asarray(s.v), int(info["steps"]), LIMIT_NAMES[int(info["limit"])])
     assert out["explicit"][2] == "wave damping" and out["implicit"][2] == "solid wave"
-    assert out["implicit"][1] < out["explicit"][1] / 3
+    assert out["implicit"][1] < out["explicit"][1] / 8
     diff = np.linalg.norm(out["implicit"][0] - out["explicit"][0]) / np.linalg.norm(out["explicit"][0])
     assert diff < ROTOR_DIFF
