@@ -18,6 +18,10 @@ edge conditions, numerics); :meth:`Model.step` is a pure function
 8. edge conditions (ghost nodes, next step) and anchors;
 9. pin each level set to phi0_k(xi_k), extrapolate xi_k into the band and smooth the
    extrapolated values.
+
+With ``Numerics.viscosity = "implicit"`` the viscous terms of step 6 are taken by backward
+Euler (:mod:`refmap.viscosity`) and the transported fields (fluid density, reference maps)
+are advanced with the updated velocity; the explicit default is unchanged bit for bit.
 """
 
 from __future__ import annotations
