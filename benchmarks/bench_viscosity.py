@@ -14,8 +14,10 @@ excluded: each run is compiled and warmed up on a short advance first) and its a
 the relative L2 difference of the velocity field at t_end to the reference run and the
 root-mean-square difference of the reference map (``err xi``, a length).  The speed-up is the explicit wall time over the implicit one.
 
-Usage: python benchmarks/bench_viscosity.py [--sizes 128,256] [--t-end 0.5]
+Usage: python benchmarks/bench_viscosity.py [--sizes 128,256] [--t-end 0.5] [--ref-factor 4]
        python benchmarks/bench_viscosity.py --sizes 512   (long on a small machine)
+docs/validation.md ("Implicit viscosity") has the figures of
+``--sizes 128,256 --t-end 0.25 --ref-factor 2``.
 """
 
 from __future__ import annotations
