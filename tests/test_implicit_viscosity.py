@@ -337,3 +337,20 @@ def test_rotor_implicit_close_to_explicit():
     assert out["implicit"][1] < out["explicit"][1] / 8
     diff = np.linalg.norm(out["implicit"][0] - out["explicit"][0]) / np.linalg.norm(out["explicit"][0])
     assert diff < ROTOR_DIFF
+
+
+def test_dt_fixed_warning_knows_the_implicit_limits():
+    """Case.validate measures dt_fixed against the implicit mode's own limits (solid wave
+    for the circle at 32^2: 0.5 h / c_L = 0.0129), not the explicit wave-damping one."""
+    import warnings
+
+    from refmap.case import CaseWarning
+    from refmap.scenarios import get_case
+
+    c = get_case("circle", 32)
+    num = dataclasses_replace(c.numerics, viscosity="implicit")
+    with pytest.warns(CaseWarning, match=r"dt_fixed = 0\.02 .*0\.0129 \(limited by solid wave"):
+        c.replace(numerics=dataclasses_replace(num, dt_fixed=0.02)).validate()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        c.replace(numerics=dataclasses_replace(num, dt_fixed=0.01)).validate()
