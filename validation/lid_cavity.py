@@ -89,13 +89,22 @@ class BulkViscosity:
         return div_node(q, jnp.zeros_like(q), q, g.dx, g.dy)
 
 
-def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5):
-    """(model, params, dt, zeta) for an n x n grid."""
+def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5, viscosity=None):
+    """(model, params, dt, zeta) for an n x n grid.
+
+    ``viscosity=None`` (the validated set-up): zeta as the :class:`BulkViscosity` body force,
+    acting everywhere, explicit.  ``"explicit"`` or ``"implicit"``: zeta as the fluid's
+    ``bulk_viscosity`` (weighted by the fluid fraction like the rest of the fluid stress,
+    so not in the solid) with ``Numerics.viscosity`` set so; implicit drops the diffusion
+    limit from dt (docs/validation.md, "Implicit viscosity").
+    """
     h = 1.0 / n
     c = float(np.sqrt(lambda_f))
     zeta = beta * c * h
     c_solid = float(np.sqrt(kappa + 2.0 * G))  # longitudinal speed of LogNeoHookean, rho = 1
-    dt = cfl * min(h * h / (4.0 * (MU + zeta)), h / c, h / c_solid)
+    diffusion = h * h / (4.0 * (MU + zeta)) if viscosity != "implicit" else np.inf
+    dt = cfl * min(diffusion, h / c, h / c_solid)
+    as_fluid = viscosity is not None
     model = Model(
         Grid(n, n, 0.0, 1.0, 0.0, 1.0),
         (
@@ -106,11 +115,12 @@ def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5):
             ),
         ),
         Boundary(top=(Segment("velocity", velocity=(1.0, 0.0)),)),
-        Numerics(dt_fixed=dt),
-        body_forces=(BulkViscosity(zeta),) if zeta > 0 else (),
+        Numerics(dt_fixed=dt, viscosity=viscosity or "explicit"),
+        body_forces=(BulkViscosity(zeta),) if zeta > 0 and not as_fluid else (),
     )
     params = Params(
-        fluid=FluidParams(rho0=1.0, lambda_f=lambda_f, eta=0.0, extra_viscosity=MU),
+        fluid=FluidParams(rho0=1.0, lambda_f=lambda_f, eta=0.0, extra_viscosity=MU,
+                          bulk_viscosity=zeta if as_fluid else 0.0),
         laws=(model.solids[0].law,),
     )
     return model, params, dt, zeta

@@ -18,6 +18,10 @@ edge conditions, numerics); :meth:`Model.step` is a pure function
 8. edge conditions (ghost nodes, next step) and anchors;
 9. pin each level set to phi0_k(xi_k), extrapolate xi_k into the band and smooth the
    extrapolated values.
+
+With ``Numerics.viscosity = "implicit"`` the viscous terms of step 6 are taken by backward
+Euler (:mod:`refmap.viscosity`) and the transported fields (fluid density, reference maps)
+are advanced with the updated velocity; the explicit default is unchanged bit for bit.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from refmap.operators import (
     node_average,
 )
 from refmap.state import FluidParams, Numerics, Params, State
+from refmap.viscosity import ImplicitViscosity
 
 LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max", "fixed")
 
@@ -140,6 +145,11 @@ class Model:
         self.body_forces = tuple(body_forces)
         self.bc = BoundaryConditions(grid, self.boundary)
         self.h = grid.h
+        self.implicit_viscosity = (
+            ImplicitViscosity(self, rtol=self.numerics.viscosity_rtol,
+                              preconditioner=self.numerics.viscosity_preconditioner)
+            if self.numerics.viscosity == "implicit" else None
+        )
         if initial_velocity is not None:  # node values (2, nx, ny), see initial_state
             v0 = np.asarray(initial_velocity, dtype=np.float64)
             if v0.shape != (2,) + grid.shape():
@@ -388,9 +398,22 @@ class Model:
           waves at any dt, so inviscid runs need some viscosity);
         * fluid sound: h / sqrt(lambda_f / rho0);
         * convective: h / max(|u| + |v|).
+
+        With ``Numerics.viscosity = "implicit"`` the viscous limit is dropped (backward
+        Euler), and so is the wave-damping limit: the transported fields (reference maps,
+        fluid density) are then updated with the new velocity (symplectic Euler), under
+        which an undamped elastic or sound wave is stable up to its own CFL limit (solid
+        wave, fluid sound).  Implicit damping alone would not lift it: for a mode u' = v,
+        rho v' = -M k^2 u - nu k^2 v, forward Euler for u with backward Euler for the
+        damping multiplies the energy by (1 + dt^2 c^2 k^2) / (1 + dt nu k^2) per step,
+        stable only for dt <= nu / c^2, as explicit (measured: the circle at 64^2 gains
+        energy at 1.0x the limit either way; the lid-driven cavity at dt = h / (2 c) blows
+        up unless the density moves with the new velocity too).
         """
         h = self.h
         fl = params.fluid
+        # from the numerics alone (Case._check_dt_fixed calls this on a stand-in model)
+        implicit = self.numerics.viscosity == "implicit"
         rho_min = fl.rho0
         c_solid = jnp.asarray(1e-30)
         M_max = jnp.asarray(1e-30)
@@ -409,9 +432,14 @@ class Model:
         # the same bound for sound waves in the fluid, damped by eta and the extra viscosity
         nu_f = fl.eta + fl.extra_viscosity + fl.bulk_viscosity
         damping = jnp.minimum(damping, jnp.where(nu_f > 0, 2.0 * nu_f / fl.lambda_f, jnp.inf))
+        if implicit:  # symplectic transport: no damping limit
+            damping = jnp.asarray(jnp.inf)
+        viscous = h * h / (4.0 * jnp.maximum(nu, 1e-30))
+        if implicit:  # backward Euler: no viscous limit
+            viscous = jnp.asarray(jnp.inf)
         limits = jnp.stack(
             [
-                h * h / (4.0 * jnp.maximum(nu, 1e-30)),
+                viscous,
                 h / c_solid,
                 damping,
                 h / fl.sound_speed,
@@ -429,8 +457,11 @@ class Model:
         return dt, i
 
     # ------------------------------------------------------------------ derived fields
-    def derived(self, state: State, params: Params):
-        """Corner and node fields recomputed from the state (stresses, weights, density)."""
+    def derived(self, state: State, params: Params, viscous: bool = True):
+        """Corner and node fields recomputed from the state (stresses, weights, density).
+
+        ``viscous=False`` leaves the fluid's viscous stress out of the mixed stress (the
+        implicit viscous step adds it separately, :mod:`refmap.viscosity`)."""
         g = self.grid
         dx, dy, h = g.dx, g.dy, self.h
         n = self.numerics
@@ -447,10 +478,13 @@ class Model:
         ux, uy = grad_corner(vp1[0], dx, dy)
         vx, vy = grad_corner(vp1[1], dx, dy)
         div_corner = ux + vy  # corner divergence of v (bottom-left triangle)
-        bulk = fl.bulk_viscosity * div_corner
-        sxx_f = -p + fl.eta * ux + bulk
-        sxy_f = 0.5 * fl.eta * (uy + vx)
-        syy_f = -p + fl.eta * vy + bulk
+        if viscous:
+            bulk = fl.bulk_viscosity * div_corner
+            sxx_f = -p + fl.eta * ux + bulk
+            sxy_f = 0.5 * fl.eta * (uy + vx)
+            syy_f = -p + fl.eta * vy + bulk
+        else:
+            sxx_f, sxy_f, syy_f = -p, jnp.zeros_like(p), -p
 
         out = dict(p_corner=p, div_corner=div_corner)
         N = self.n_solids
@@ -504,15 +538,17 @@ class Model:
         t = state.t
         v, rho_f = state.v, state.rho_f
 
-        d = self.derived(state, params)
+        implicit = self.implicit_viscosity is not None
+        d = self.derived(state, params, viscous=not implicit)
         vp = bc.pad_velocity(v, t)
         rp = bc.pad_density(rho_f, t, fl.rho0)
 
-        # 6. updates of v and rho_f
+        # 6. updates of v and rho_f (with implicit viscosity: every term but the viscous
+        # ones here, then the backward-Euler viscous solve, refmap.viscosity)
         divs = div_node(d["sxx"], d["sxy"], d["syy"], dx, dy)
         if n.band_force == "solid" and self.n_solids:
             divs = divs + self.band_force_to_solid(state, d)
-        force = divs + fl.extra_viscosity * laplacian(vp, dx, dy, g=2)
+        force = divs if implicit else divs + fl.extra_viscosity * laplacian(vp, dx, dy, g=2)
         ctx = dict(state=state, params=params, derived=d, model=self)
         for term in self.body_forces:
             force = force + term(ctx)
@@ -522,16 +558,29 @@ class Model:
         # there.  (Unweighted, a steady converging solid velocity -- at the edge of the
         # stick's anchor -- grows rho_f exponentially inside the solid, where no fluid
         # pressure pushes back: the thesis's stick at 128^2 blew up at t ~ 9.)
+        v_new = v + dt * acc
+        if implicit:
+            v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt)
+            # the transported fields move with the updated velocity (symplectic Euler, see
+            # time_step): the fluid density here, the reference maps below
+            vq, vqp = v_new, bc.pad_velocity(v_new, t + dt)
+        else:
+            vq, vqp = v, vp
         if n.compression == "corner":
             # the divergence at each node's top-right corner (a forward difference): the
             # negative transpose of the backward pressure gradient that div_node makes of
             # the bottom-left-node corner pressure (see Numerics), with that corner's fluid
             # fraction
-            compression = d["wf_c"][1:, 1:] * d["div_corner"][1:, 1:]
+            if implicit:
+                ux, _ = grad_corner(vqp[0, 1:-1, 1:-1], dx, dy)
+                _, vy = grad_corner(vqp[1, 1:-1, 1:-1], dx, dy)
+                div_c = ux + vy
+            else:
+                div_c = d["div_corner"]
+            compression = d["wf_c"][1:, 1:] * div_c[1:, 1:]
         else:
-            compression = d["wf_n"] * divergence_centered(vp[0], vp[1], dx, dy, g=2)
-        drho = advect(rp, v, dx, dy) - rho_f * compression
-        v_new = v + dt * acc
+            compression = d["wf_n"] * divergence_centered(vqp[0], vqp[1], dx, dy, g=2)
+        drho = advect(rp, vq, dx, dy) - rho_f * compression
         rho_new = rho_f + dt * drho
 
         if self.n_solids == 0:
@@ -539,7 +588,9 @@ class Model:
 
         # 1. reference-map advection inside each solid and the inner part of its band
         xip = bc.pad_affine(state.xi)
-        dxi = advect(xip, v, dx, dy)
+        # with implicit viscosity the maps move with the updated velocity (symplectic Euler
+        # for the elastic waves: no damping needed for their stability, see time_step)
+        dxi = advect(xip, vq, dx, dy)
         inside = (state.phi < (n.band - 3.0) * h)[:, None]
         xi_new = jnp.where(inside, state.xi + dt * dxi, state.xi)
 

@@ -172,6 +172,15 @@ class Numerics:
       grid-scale sound (it needs ``(eta + bulk_viscosity) / rho0 >~ c h / 2`` to stay
       stable) and lets a one-node velocity jet in a thin fluid film between two bodies pump
       the film's density without bound (docs/method.md).
+
+    ``viscosity`` treats the fluid's viscous stress (``eta`` and ``bulk_viscosity``) and the
+    ``extra_viscosity`` term ``"explicit"`` (default, forward Euler as everything else,
+    limited to dt <= h^2 rho / (4 nu)) or ``"implicit"`` (backward Euler: one linear solve
+    per step to relative residual ``viscosity_rtol``, preconditioned by the operator's
+    diagonal (``viscosity_preconditioner = "jacobi"``, default) or by a fast
+    constant-coefficient FFT/DCT solve (``"fast"``), :mod:`refmap.viscosity`); then the
+    adaptive time step drops the viscous limit and reports the next one
+    (:meth:`refmap.model.Model.time_step`; docs/method.md, "Implicit viscosity").
     """
 
     blur_width: float = 2.0
@@ -195,6 +204,9 @@ class Numerics:
     phi_max: float = 12.0
     compression: str = "centred"
     band_force: str = "local"
+    viscosity: str = "explicit"
+    viscosity_rtol: float = 1e-6
+    viscosity_preconditioner: str = "jacobi"
 
     def __post_init__(self):
         try:
@@ -204,6 +216,17 @@ class Numerics:
         if self.compression not in ("corner", "centred"):
             raise ValueError(
                 f"numerics compression must be 'corner' or 'centred', got {self.compression!r}"
+            )
+        if self.viscosity not in ("explicit", "implicit"):
+            raise ValueError(
+                f"numerics viscosity must be 'explicit' or 'implicit', got {self.viscosity!r}"
+            )
+        if not (isinstance(self.viscosity_rtol, (int, float)) and 0 < self.viscosity_rtol < 1):
+            raise ValueError(f"numerics viscosity_rtol must be in (0, 1), got {self.viscosity_rtol!r}")
+        if self.viscosity_preconditioner not in ("jacobi", "fast"):
+            raise ValueError(
+                "numerics viscosity_preconditioner must be 'jacobi' or 'fast', "
+                f"got {self.viscosity_preconditioner!r}"
             )
         if self.band_force not in ("local", "solid"):
             raise ValueError(
