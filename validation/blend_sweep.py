@@ -77,8 +77,10 @@ def _wrinkle(phi, dx, dy, h):
     return worst
 
 
-def run_one(name: str, kernel: str, width: float, n: int, checks: int) -> dict:
+def run_one(name: str, kernel: str, width: float, n: int, checks: int, t_end=None) -> dict:
     case = _case(name, n)
+    if t_end is not None:
+        case = case.replace(t_end=float(t_end))
     case = case.replace(numerics=case.numerics.__class__(
         **{**{f: getattr(case.numerics, f) for f in case.numerics.__dataclass_fields__},
            "blend": kernel, "blur_width": width}))
@@ -89,7 +91,7 @@ def run_one(name: str, kernel: str, width: float, n: int, checks: int) -> dict:
     limit = 10.0 * max([abs(float(v)) for v in speeds.values()] + [1e-3])
     adv = jax.jit(lambda s, t: model.advance(s, params, t, speed_limit=limit))
     diag = jax.jit(lambda s: model.diagnostics(s, params))
-    row = dict(case=name, kernel=kernel, width=width, n=n, ok=True, t_stop=case.t_end,
+    row = dict(case=name, kernel=kernel, width=width, n=n, t_end=case.t_end, ok=True, t_stop=case.t_end,
                wrinkle=0.0, checker=0.0, min_gap=math.inf, overlap=0.0, steps=0)
     t0 = time.perf_counter()
     for k in range(1, checks + 1):
@@ -138,6 +140,7 @@ def main(argv=None):
     ap.add_argument("--checks", type=int, default=10)
     ap.add_argument("--only", default=None, help="comma-separated case names")
     ap.add_argument("--kernels", default=",".join(KERNELS), help="kernel:width, comma-separated")
+    ap.add_argument("--t-end", type=float, default=None, help="end time (default: each case's)")
     ap.add_argument("--out", default="blend_sweep.jsonl")
     ap.add_argument("--table", default=None, help="print the table of a results file and stop")
     a = ap.parse_args(argv)
@@ -160,7 +163,7 @@ def main(argv=None):
         for name in names:
             if (name, k, w, a.n) in done:
                 continue
-            r = run_one(name, k, w, a.n, a.checks)
+            r = run_one(name, k, w, a.n, a.checks, a.t_end)
             print(json.dumps(r), flush=True)
             with out.open("a") as f:
                 f.write(json.dumps(r) + "\n")
