@@ -305,7 +305,7 @@ def test_wall_contact_keeps_a_falling_ball_out_of_the_floor(walls):
 # ---------------------------------------------------------------- scenarios
 def test_suspension_discs_are_apart_and_balanced():
     """The suspension's 100 discs: equal radii covering 30 % of the box, no two closer than
-    0.07 (2 cells at 128^2), all 0.13 off the walls, 50 heavy (1.5) and 50 light (0.6),
+    0.06 (2 cells at 128^2), all 0.22 off the walls (two cells at 40^2, as case files need), 50 heavy (1.5) and 50 light (0.6),
     deterministic; impossible packings are refused with the count named."""
     from refmap.scenarios_fssi import suspension_discs
 
@@ -316,8 +316,8 @@ def test_suspension_discs_are_apart_and_balanced():
     assert len(d) == 100 and all(x[1] == r for x in d)
     assert 100 * math.pi * r**2 == pytest.approx(0.3 * 16.0)
     D = np.sqrt(((c[:, None] - c[None]) ** 2).sum(-1)) + 9.0 * np.eye(100)
-    assert D.min() - 2 * r > 0.07
-    assert np.all(np.abs(c) + r < 2.0 - 0.13)
+    assert D.min() - 2 * r > 0.06
+    assert np.all(np.abs(c) + r < 2.0 - 0.22)
     assert sorted(x[2] for x in d) == [0.6] * 50 + [1.5] * 50
     with pytest.raises(ValueError, match="400 discs"):
         suspension_discs(400, fill=0.9)

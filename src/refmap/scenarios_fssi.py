@@ -181,7 +181,7 @@ def suspension_discs(count: int = 100, seed: int = 7, box: float = 2.0, fill: fl
     the fraction ``fill`` of the [-box, box]^2 box, on a square lattice (the nearest square
     number of sites at or above ``count``, the extra sites left empty at random), each
     centre moved by up to a quarter of the free space between neighbours (so the closest
-    pair is at least half that space apart); the lattice fills 95 % of the box, leaving the
+    pair is at least half that space apart); the lattice fills 90 % of the box, leaving the
     discs off the walls; densities alternate 1.5 / 0.6 in a
     random order (equal numbers).  Deterministic for a given seed."""
     import numpy as np
@@ -192,7 +192,7 @@ def suspension_discs(count: int = 100, seed: int = 7, box: float = 2.0, fill: fl
     side = math.ceil(math.sqrt(count))
     L = 2.0 * box
     r = math.sqrt(fill * L * L / (count * math.pi))
-    spacing = 0.95 * L / side
+    spacing = 0.9 * L / side
     if 2.0 * r > 0.8 * spacing:
         raise ValueError(f"suspension: {count} discs filling {fill} of the box do not fit")
     sites = [(i, j) for i in range(side) for j in range(side)]
@@ -203,7 +203,7 @@ def suspension_discs(count: int = 100, seed: int = 7, box: float = 2.0, fill: fl
     out = []
     for k, s in enumerate(keep):
         i, j = sites[s]
-        x0 = -0.95 * box
+        x0 = -0.9 * box
         c = (x0 + (i + 0.5) * spacing + jitter[k, 0], x0 + (j + 0.5) * spacing + jitter[k, 1])
         out.append(((float(c[0]), float(c[1])), r, float(dens[k])))
     return tuple(out)
@@ -215,7 +215,7 @@ def suspension_discs(count: int = 100, seed: int = 7, box: float = 2.0, fill: fl
 )
 def suspension(n: int = 128, count: int = 100) -> Case:
     # 100 discs of radius 0.124 (30 % of the 4 x 4 box) on a jittered 10 x 10 lattice
-    # (closest pair 0.07 apart, 0.13 from the walls),
+    # (closest pair 0.06 apart, 0.23 from the walls),
     # densities 1.5 and 0.6 in the fluid of ``settle`` (lambda_f = 5, g = 0.5: mild
     # stratification, see there).  At the default 128^2 a disc is 8 cells across (19 at
     # 300^2, the peer codes' size).  The cost is the point of this case: every solid keeps
