@@ -325,8 +325,7 @@ def test_suspension_discs_are_apart_and_balanced():
 
 def test_suspension_short_run():
     """``suspension`` (100 discs) at 48^2 for 8 steps: finite, every disc keeps its own
-    nodes (no node inside two discs) and the whole suspension starts to fall (the fluid
-    starts uniform, so every disc first falls at g, heavy or light)."""
+    nodes (no node inside two discs) and the suspension starts to fall freely."""
     case = get_case("suspension", 48)
     assert len(case.solids) == 100
     model, params = case.build()
@@ -337,9 +336,14 @@ def test_suspension_short_run():
     inside = np.asarray(s.phi) < 0
     assert inside.sum(axis=0).max() == 1
     assert np.all(inside.sum(axis=(1, 2)) > 0)
+    # the box starts uniform and at rest, and by t = 0.007 no sound wave from the walls (c t
+    # = 0.015) has reached a disc (0.23 away): the suspension falls freely, its discs' mean
+    # vertical velocity -g t (measured within 0.7 %; single discs differ by up to 1e-3
+    # through their start-up elastic and contact transients)
     ws = np.asarray(model.derived(s, params)["ws_n"])
     vy = (ws * np.asarray(s.v[1])[None]).sum(axis=(1, 2)) / ws.sum(axis=(1, 2))
-    assert np.all(vy < 0.0)
+    g_t = -case.gravity[1] * float(s.t)
+    assert abs(vy.mean() + g_t) < 0.05 * g_t
 
 
 def test_fssi_scenarios_are_registered_with_contact():
