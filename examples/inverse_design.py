@@ -93,7 +93,7 @@ def design(simulate, target, h, iters: int, tol: float = 1e-14, verbose: bool = 
     def loss(theta):
         return jnp.sum((simulate(theta)[-1] - target) ** 2) / h**2
 
-    it, x, vals, xs = _lbfgs(loss, jnp.asarray(START, dtype=jnp.float64), iters, tol)
+    it, x, vals, xs = rd.minimize_lbfgs(loss, jnp.asarray(START, dtype=jnp.float64), iters, tol)
     hist = [dict(iteration=k, loss=float(vals[k]), s=float(xs[k, 0]), g=float(xs[k, 1]))
             for k in range(it)]
     hist.append(dict(iteration=it, loss=float(jax.jit(loss)(x)), s=float(x[0]), g=float(x[1])))
@@ -102,35 +102,6 @@ def design(simulate, target, h, iters: int, tol: float = 1e-14, verbose: bool = 
             print(f"  it {r['iteration']:3d}  (distance/h)^2 {r['loss']:.3e}  "
                   f"U {U0 * r['s']:.6f}  g {r['g']:+.6f}")
     return hist
-
-
-def _lbfgs(fun, x0, iters, tol):
-    """optax L-BFGS in one ``lax.while_loop``: (iterations, x, misfits, iterates)."""
-    import optax
-
-    opt = optax.lbfgs()
-    value_and_grad = optax.value_and_grad_from_state(fun)
-
-    def cond(c):
-        k, _, _, val, _, _ = c
-        return (k < iters) & (val >= tol)
-
-    def body(c):
-        k, x, st, _, vals, xs = c
-        val, g = value_and_grad(x, state=st)
-        upd, st = opt.update(g, st, x, value=val, grad=g, value_fn=fun)
-        vals, xs = vals.at[k].set(val), xs.at[k].set(x)
-        return k + 1, optax.apply_updates(x, upd), st, val, vals, xs
-
-    @jax.jit
-    def run(x0):
-        init = (0, x0, opt.init(x0), jnp.inf, jnp.full(iters, jnp.nan),
-                jnp.full((iters,) + x0.shape, jnp.nan))
-        k, x, _, _, vals, xs = jax.lax.while_loop(cond, body, init)
-        return k, x, vals, xs
-
-    k, x, vals, xs = run(x0)
-    return int(k), x, vals, xs
 
 
 def plot(hist, paths, target, path):

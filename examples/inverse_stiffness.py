@@ -79,42 +79,13 @@ def recover(simulate, observed, iters: int, tol: float = 1e-12, verbose: bool = 
         return jnp.sum((simulate(log_G) - observed) ** 2) / scale
 
     x0 = jnp.asarray(math.log(G_START), dtype=jnp.float64)
-    it, x, vals, xs = _lbfgs(misfit, x0, iters, tol)
+    it, x, vals, xs = rd.minimize_lbfgs(misfit, x0, iters, tol)
     hist = [dict(iteration=k, misfit=float(vals[k]), G=float(jnp.exp(xs[k]))) for k in range(it)]
     hist.append(dict(iteration=it, misfit=float(jax.jit(misfit)(x)), G=float(jnp.exp(x))))
     if verbose:
         for h in hist:
             print(f"  it {h['iteration']:3d}  misfit {h['misfit']:.3e}  G {h['G']:.6f}")
     return hist
-
-
-def _lbfgs(fun, x0, iters, tol):
-    """optax L-BFGS in one ``lax.while_loop``: (iterations, x, misfits, iterates)."""
-    import optax
-
-    opt = optax.lbfgs()
-    value_and_grad = optax.value_and_grad_from_state(fun)
-
-    def cond(c):
-        k, _, _, val, _, _ = c
-        return (k < iters) & (val >= tol)
-
-    def body(c):
-        k, x, st, _, vals, xs = c
-        val, g = value_and_grad(x, state=st)
-        upd, st = opt.update(g, st, x, value=val, grad=g, value_fn=fun)
-        vals, xs = vals.at[k].set(val), xs.at[k].set(x)
-        return k + 1, optax.apply_updates(x, upd), st, val, vals, xs
-
-    @jax.jit
-    def run(x0):
-        init = (0, x0, opt.init(x0), jnp.inf, jnp.full(iters, jnp.nan),
-                jnp.full((iters,) + x0.shape, jnp.nan))
-        k, x, _, _, vals, xs = jax.lax.while_loop(cond, body, init)
-        return k, x, vals, xs
-
-    k, x, vals, xs = run(x0)
-    return int(k), x, vals, xs
 
 
 def plot(hist, traces, times, path):

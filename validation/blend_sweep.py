@@ -31,6 +31,7 @@ what it did (and a rerun skips the runs already there).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import time
@@ -81,9 +82,7 @@ def run_one(name: str, kernel: str, width: float, n: int, checks: int, t_end=Non
     case = _case(name, n)
     if t_end is not None:
         case = case.replace(t_end=float(t_end))
-    case = case.replace(numerics=case.numerics.__class__(
-        **{**{f: getattr(case.numerics, f) for f in case.numerics.__dataclass_fields__},
-           "blend": kernel, "blur_width": width}))
+    case = case.replace(numerics=dataclasses.replace(case.numerics, blend=kernel, blur_width=width))
     model, params = case.build()
     state = jax.jit(model.initial_state)(params)
     g = model.grid

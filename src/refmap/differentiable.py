@@ -60,6 +60,7 @@ __all__ = [
     "RolloutResult",
     "differentiable_model",
     "from_case",
+    "minimize_lbfgs",
     "replace_fluid",
     "replace_law",
     "replace_shape",
@@ -139,14 +140,20 @@ def replace_shape(shape, **fields):
     calls.  Use the result through :func:`with_traced`."""
     if not dataclasses.is_dataclass(shape):
         raise TypeError(f"replace_shape: {shape!r} is not a dataclass shape")
-    names = {f.name for f in dataclasses.fields(shape)}
+    return _with_fields("replace_shape", shape, fields)
+
+
+def _with_fields(caller: str, obj, fields: Mapping):
+    """A shallow copy of the frozen dataclass ``obj`` with ``fields`` set (values may be
+    traced, so the constructor and its checks are bypassed); unknown names are refused."""
+    names = {f.name for f in dataclasses.fields(obj)}
     unknown = sorted(set(fields) - names)
     if unknown:
-        raise ValueError(f"replace_shape: {type(shape).__name__} has no field(s) {unknown}; "
+        raise ValueError(f"{caller}: {type(obj).__name__} has no field(s) {unknown}; "
                          f"its fields are {sorted(names)}")
-    out = copy.copy(shape)
-    for k, v in fields.items():
-        object.__setattr__(out, k, v)
+    out = copy.copy(obj)
+    for name, v in fields.items():
+        object.__setattr__(out, name, v)
     return out
 
 
@@ -220,31 +227,13 @@ def replace_law(params: Params, k: int, **values) -> Params:
     laws = list(params.laws)
     if not (0 <= k < len(laws)):
         raise ValueError(f"replace_law: no solid {k} (params has {len(laws)} laws)")
-    law = laws[k]
-    names = {f.name for f in dataclasses.fields(law)}
-    unknown = sorted(set(values) - names)
-    if unknown:
-        raise ValueError(f"replace_law: {type(law).__name__} has no field(s) {unknown}; "
-                         f"its fields are {sorted(names)}")
-    new = copy.copy(law)
-    for name, v in values.items():
-        object.__setattr__(new, name, v)
-    laws[k] = new
+    laws[k] = _with_fields("replace_law", laws[k], values)
     return dataclasses.replace(params, laws=tuple(laws))
 
 
 def replace_fluid(params: Params, **values) -> Params:
     """``params`` with fluid fields replaced (``eta``, ``lambda_f``, ``rho0``, ...)."""
-    fl = params.fluid
-    names = {f.name for f in dataclasses.fields(fl)}
-    unknown = sorted(set(values) - names)
-    if unknown:
-        raise ValueError(f"replace_fluid: FluidParams has no field(s) {unknown}; "
-                         f"its fields are {sorted(names)}")
-    new = copy.copy(fl)
-    for name, v in values.items():
-        object.__setattr__(new, name, v)
-    return dataclasses.replace(params, fluid=new)
+    return dataclasses.replace(params, fluid=_with_fields("replace_fluid", params.fluid, values))
 
 
 # ----------------------------------------------------------------------------- set-up
@@ -353,3 +342,35 @@ def rollout(model, state: State, params: Params, n_steps: int, dt,
     if loss is not None:
         value = loss(s, obs) if observe is not None else loss(s)
     return RolloutResult(s, value, obs)
+
+
+def minimize_lbfgs(fun, x0, iters: int, tol: float):
+    """Minimise ``fun`` from ``x0`` with optax's L-BFGS, the whole loop in one jitted
+    ``lax.while_loop``: at most ``iters`` iterations, stopping once ``fun < tol``.  Returns
+    ``(iterations done, x, values, iterates)``, the last two padded with NaN to ``iters``.
+    Needs optax (``pip install -e ".[inverse]"``); used by the inverse-problem examples."""
+    import optax
+
+    opt = optax.lbfgs()
+    value_and_grad = optax.value_and_grad_from_state(fun)
+
+    def cond(c):
+        k, _, _, val, _, _ = c
+        return (k < iters) & (val >= tol)
+
+    def body(c):
+        k, x, st, _, vals, xs = c
+        val, g = value_and_grad(x, state=st)
+        upd, st = opt.update(g, st, x, value=val, grad=g, value_fn=fun)
+        vals, xs = vals.at[k].set(val), xs.at[k].set(x)
+        return k + 1, optax.apply_updates(x, upd), st, val, vals, xs
+
+    @jax.jit
+    def run(x0):
+        init = (0, x0, opt.init(x0), jnp.inf, jnp.full(iters, jnp.nan),
+                jnp.full((iters,) + x0.shape, jnp.nan))
+        k, x, _, _, vals, xs = lax.while_loop(cond, body, init)
+        return k, x, vals, xs
+
+    k, x, vals, xs = run(x0)
+    return int(k), x, vals, xs

@@ -161,17 +161,23 @@ def settle(n: int = 128) -> Case:
         Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"ball{k} (r={r:g}, rho={rho:g})")
         for k, (c, r, rho) in enumerate(SETTLE_BALLS)
     )
+    return _settling_box("settle", n, solids, t_end=16.0, frames=60)
+
+
+def _settling_box(name: str, n: int, solids, t_end: float, frames: int) -> Case:
+    """Solids in the closed [-2, 2]^2 box of ``settle`` (and ``suspension``): lambda_f = 5,
+    g = 0.5 downwards, energy-consistent compression, default contact."""
     return Case(
-        name="settle",
+        name=name,
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
         solids=solids,
         boundary=Boundary(),
         fluid=FluidParams(lambda_f=5.0),
         numerics=Numerics(compression="corner"),
         gravity=(0.0, -0.5),
-        t_end=16.0,
-        frames=60,
-        description=DESCRIPTIONS["settle"],
+        t_end=t_end,
+        frames=frames,
+        description=DESCRIPTIONS[name],
         contact=Contact(),
     )
 
@@ -225,16 +231,4 @@ def suspension(n: int = 128, count: int = 100) -> Case:
         Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"disc{k} (rho={rho:g})")
         for k, (c, r, rho) in enumerate(suspension_discs(count))
     )
-    return Case(
-        name="suspension",
-        grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
-        solids=solids,
-        boundary=Boundary(),
-        fluid=FluidParams(lambda_f=5.0),
-        numerics=Numerics(compression="corner"),
-        gravity=(0.0, -0.5),
-        t_end=10.0,
-        frames=50,
-        description=DESCRIPTIONS["suspension"],
-        contact=Contact(),
-    )
+    return _settling_box("suspension", n, solids, t_end=10.0, frames=50)
