@@ -32,6 +32,7 @@ from __future__ import annotations
 import functools
 import math
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 
@@ -252,7 +253,7 @@ def extrapolate_linear(
 
     # Values that are not known yet are never used (weight 0), but may be NaN: zero them.
     state = (jnp.where(gvalid, gx, 0.0), jnp.where(gvalid, gy, 0.0), jnp.where(solid, f, 0.0))
-    _, _, f_ext = lax.fori_loop(0, iters, sweep, state)
+    _, _, f_ext = lax.fori_loop(0, iters, jax.checkpoint(sweep, prevent_cse=False), state)
     return jnp.where(update_f & (af <= iters), f_ext, f)
 
 

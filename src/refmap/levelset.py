@@ -18,6 +18,7 @@ may be traced.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 from jax.scipy.special import erf
@@ -169,7 +170,7 @@ def redistance(
         close = p - relax * (sign * jnp.abs(p) - dist)
         return jnp.where(near, close, far)
 
-    return lax.fori_loop(0, iters, step, phi0)
+    return lax.fori_loop(0, iters, jax.checkpoint(step, prevent_cse=False), phi0)
 
 
 def pin_levelset(
