@@ -218,7 +218,9 @@ class Case:
     def hydrostatic_mach(self):
         """``(M, rho0, |g|, L, lambda_f)`` with M = rho0 |g| L / lambda_f, L the domain's
         height along g (see :meth:`_check_hydrostatic`); None without gravity or with
-        traced fluid parameters."""
+        traced fluid parameters or an incompressible fluid."""
+        if self.numerics.fluid_model == "incompressible":
+            return None
         gx, gy = (float(x) for x in self.gravity)
         gmag = math.hypot(gx, gy)
         if gmag == 0:
@@ -236,7 +238,7 @@ class Case:
         """``(nu, need, c, h)`` when sound is under-damped with the centred compression
         (``(eta + extra_viscosity + bulk_viscosity) / rho0 = nu < need = c h / 2``; see
         :meth:`_check_sound_damping`), else None."""
-        if self.numerics.compression != "centred":
+        if self.numerics.compression != "centred" or self.numerics.fluid_model == "incompressible":
             return None
         fl = self.fluid
         try:
