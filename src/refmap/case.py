@@ -90,6 +90,13 @@ class Case:
 
         check_memory(self)  # before any grid-sized array is made
         g = self.grid
+        if self.numerics.fluid_model == "incompressible":
+            from refmap.projection import check_boundary
+
+            try:  # the edge conditions the projection supports, the fluxes' balance
+                check_boundary(self.boundary, g)
+            except ValueError as e:
+                bad(f"boundary: {e}")
         X, Y = g.mesh("node")
         h = g.h
         covered = np.zeros(X.shape, dtype=bool)  # nodes inside some solid

@@ -158,6 +158,18 @@ class Model:
                        preconditioner=self.numerics.pressure_preconditioner)
             if self.numerics.fluid_model == "incompressible" else None
         )
+        free = np.ones(grid.shape())  # the projection's correction weight: 1 - anchor weights
+        for s in self.solids:
+            if s.anchor is not None and self.projection is not None:
+                weight = getattr(s.anchor, "velocity_weight", None)
+                if weight is None:
+                    raise ValueError(
+                        f"solid {s.name!r}: fluid_model 'incompressible' needs the anchor's "
+                        f"velocity_weight(grid) (the nodes it holds); {type(s.anchor).__name__} "
+                        "has none"
+                    )
+                free = free * (1.0 - np.asarray(weight(grid)))
+        self._anchor_free = None if np.all(free == 1.0) else free
         if initial_velocity is not None:  # node values (2, nx, ny), see initial_state
             v0 = np.asarray(initial_velocity, dtype=np.float64)
             if v0.shape != (2,) + grid.shape():
@@ -588,7 +600,14 @@ class Model:
         if self.projection is not None:
             # incompressible: the fluid pressure is the projection's (rho_f stays rho0, so
             # the pressure lambda_f (rho_f / rho0 - 1) in the stress above is zero)
-            v_new = self.projection.project(v_new, d["rho"], t + dt, dt)
+            # the anchors' velocities first; their nodes keep them (correction weight
+            # 1 - w_anchor), so the projected velocity is divergence-free with them
+            xi0 = jnp.asarray(self._xi0)
+            for k, s in enumerate(self.solids):
+                if s.anchor is not None:
+                    v_new, _ = s.anchor.apply(g, v_new, state.xi[k], xi0[k])
+            v_new = self.projection.project(v_new, d["rho"], t + dt, dt,
+                                            weight=self._anchor_free)
             if implicit:
                 vq = v_new
             rho_new = rho_f
@@ -625,7 +644,9 @@ class Model:
         xi0 = jnp.asarray(self._xi0)
         for k, s in enumerate(self.solids):
             if s.anchor is not None:
-                v_new, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])
+                v_k, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])
+                if self.projection is None:  # incompressible: applied before the projection
+                    v_new = v_k
                 xi_new = xi_new.at[k].set(xk)
 
         # 9. pin the level sets, then extrapolate and smooth the maps

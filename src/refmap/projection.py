@@ -192,20 +192,25 @@ class Projection:
         """The discrete pressure gradient G p = -B^T p at the free velocity components."""
         return -self.BT(p)
 
-    def operator(self, rho):
-        """``A = B rho^-1 B^T`` plus ``s P0`` on the constants (SPD)."""
+    def operator(self, rho, weight=None):
+        """``A = B W rho^-1 B^T`` plus ``s P0`` on the constants (SPD on the velocities
+        it moves); ``W`` (default 1) the weight of the pressure correction per node."""
         inv = 1.0 / rho
         s = jax.lax.stop_gradient(jnp.mean(inv)) * (2.0 / self.grid.dx**2 + 2.0 / self.grid.dy**2)
+        if weight is not None:
+            inv = inv * weight
 
         def A(p):
             return self.B(inv[None] * self.BT(p)) + s * jnp.mean(p)
 
         return A, s
 
-    def preconditioner(self, rho, s):
+    def preconditioner(self, rho, s, weight=None):
         sg = jax.lax.stop_gradient
         g = self.grid
         inv = sg(1.0 / rho)
+        if weight is not None:
+            inv = inv * weight
         if self.preconditioner_kind == "fast":
             c = jnp.mean(inv)
             s0 = sg(s)
@@ -232,21 +237,26 @@ class Projection:
         return lambda r: r / diag
 
     # ------------------------------------------------------------------ the projection
-    def project(self, v_star, rho, t_new, dt, return_info=False):
-        """The divergence-free ``v = v* - dt rho^-1 G p`` (edge data at t_new); with
+    def project(self, v_star, rho, t_new, dt, weight=None, return_info=False):
+        """The divergence-free ``v = v* - dt W rho^-1 G p`` (edge data at t_new).
+
+        ``weight`` (nx, ny), default 1: how much of the correction each node takes; the
+        anchors' nodes (:meth:`refmap.model.Model.step`) take ``1 - w_anchor``, so an
+        anchor's velocity, applied to v* before, is kept where it holds fully.  With
         ``return_info`` also ``(p, info)`` (then not differentiable: plain CG)."""
         v_b = self.prescribe(v_star, t_new)
         b = self.divergence(v_b, t_new)
         rhs = -(b - jnp.mean(b)) / dt  # compatible: the fluxes balance (checked), round-off
-        A, s = self.operator(rho)
-        P = self.preconditioner(rho, s)
+        A, s = self.operator(rho, weight)
+        P = self.preconditioner(rho, s, weight)
         atol = 1e-14 * jax.lax.stop_gradient(jnp.sqrt(jnp.sum(v_b**2)) / (dt * self.grid.h))
         kw = dict(precond=P, rtol=self.rtol, atol=atol, maxiter=self.maxiter)
         if return_info:
             p, info = cg(A, rhs, **kw)
         else:
             p = solve_spd(A, rhs, **kw)
-        v = v_b + dt * self.BT(p) / rho[None]
+        inv = 1.0 / rho if weight is None else weight / rho
+        v = v_b + dt * self.BT(p) * inv[None]
         if return_info:
             return v, p, info
         return v
