@@ -77,6 +77,10 @@ class RegionAnchor:
                 f"[{Y[inside].min():.3g}, {Y[inside].max():.3g}], h = {grid.h:.3g})"
             )
 
+    def velocity_weight(self, grid: Grid) -> np.ndarray:
+        """Node weight of the anchor's velocity in :meth:`apply` (v -> w v_a + (1 - w) v)."""
+        return self.weight(grid)
+
     def apply(self, grid: Grid, v, xi, xi0):
         w = jnp.asarray(self.weight(grid))
         v = (1.0 - w) * v
@@ -102,6 +106,12 @@ class PivotAnchor:
                 f"pivot radii must be > 0, got fit_radius={self.fit_radius!r}, hold_radius={self.hold_radius!r}"
             )
         object.__setattr__(self, "center", tuple(float(c) for c in self.center))
+
+    def velocity_weight(self, grid: Grid) -> np.ndarray:
+        """Node weight of the rigid rotation in :meth:`apply` (v -> w v_rot + (1 - w) v)."""
+        X, Y = grid.mesh("node")
+        r = np.hypot(X - self.center[0], Y - self.center[1])
+        return _ramp(r - self.hold_radius, grid.h)
 
     def apply(self, grid: Grid, v, xi, xi0):
         X, Y = grid.mesh("node")

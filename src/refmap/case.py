@@ -90,6 +90,13 @@ class Case:
 
         check_memory(self)  # before any grid-sized array is made
         g = self.grid
+        if self.numerics.fluid_model == "incompressible":
+            from refmap.projection import check_boundary
+
+            try:  # the edge conditions the projection supports, the fluxes' balance
+                check_boundary(self.boundary, g)
+            except ValueError as e:
+                bad(f"boundary: {e}")
         X, Y = g.mesh("node")
         h = g.h
         covered = np.zeros(X.shape, dtype=bool)  # nodes inside some solid
@@ -218,7 +225,9 @@ class Case:
     def hydrostatic_mach(self):
         """``(M, rho0, |g|, L, lambda_f)`` with M = rho0 |g| L / lambda_f, L the domain's
         height along g (see :meth:`_check_hydrostatic`); None without gravity or with
-        traced fluid parameters."""
+        traced fluid parameters or an incompressible fluid."""
+        if self.numerics.fluid_model == "incompressible":
+            return None
         gx, gy = (float(x) for x in self.gravity)
         gmag = math.hypot(gx, gy)
         if gmag == 0:
@@ -236,7 +245,7 @@ class Case:
         """``(nu, need, c, h)`` when sound is under-damped with the centred compression
         (``(eta + extra_viscosity + bulk_viscosity) / rho0 = nu < need = c h / 2``; see
         :meth:`_check_sound_damping`), else None."""
-        if self.numerics.compression != "centred":
+        if self.numerics.compression != "centred" or self.numerics.fluid_model == "incompressible":
             return None
         fl = self.fluid
         try:

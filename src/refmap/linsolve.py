@@ -252,6 +252,17 @@ class SeparableSolver:
     def solve(self, b, a0, ax, ay):
         return self._diag(b, lambda d: 1.0 / d, a0, ax, ay)
 
+    def solve_semidefinite(self, b, ax, ay):
+        """The pseudo-inverse of ``-ax Dxx - ay Dyy`` (``a0 = 0``) applied to ``b``: the
+        operator's null modes (the constant, where every axis is periodic or even-even)
+        are set to zero; ax, ay > 0."""
+
+        def inv(d):
+            pos = d > 0
+            return jnp.where(pos, 1.0 / jnp.where(pos, d, 1.0), 0.0)
+
+        return self._diag(b, inv, 0.0, ax, ay)
+
     def _diag(self, b, fn, a0, ax, ay):
         lx, ly = self.eigenvalues()
         a0, ax, ay = (jnp.asarray(a)[..., None, None] for a in (a0, ax, ay))

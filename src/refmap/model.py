@@ -45,6 +45,7 @@ from refmap.operators import (
     laplacian,
     node_average,
 )
+from refmap.projection import Projection
 from refmap.state import FluidParams, Numerics, Params, State
 from refmap.viscosity import ImplicitViscosity
 
@@ -150,6 +151,25 @@ class Model:
                               preconditioner=self.numerics.viscosity_preconditioner)
             if self.numerics.viscosity == "implicit" else None
         )
+        # the pressure projection of an incompressible fluid (refmap.projection); building it
+        # checks the edge conditions
+        self.projection = (
+            Projection(self, rtol=self.numerics.pressure_rtol,
+                       preconditioner=self.numerics.pressure_preconditioner)
+            if self.numerics.fluid_model == "incompressible" else None
+        )
+        free = np.ones(grid.shape())  # the projection's correction weight: 1 - anchor weights
+        for s in self.solids:
+            if s.anchor is not None and self.projection is not None:
+                weight = getattr(s.anchor, "velocity_weight", None)
+                if weight is None:
+                    raise ValueError(
+                        f"solid {s.name!r}: fluid_model 'incompressible' needs the anchor's "
+                        f"velocity_weight(grid) (the nodes it holds); {type(s.anchor).__name__} "
+                        "has none"
+                    )
+                free = free * (1.0 - np.asarray(weight(grid)))
+        self._anchor_free = None if np.all(free == 1.0) else free
         if initial_velocity is not None:  # node values (2, nx, ny), see initial_state
             v0 = np.asarray(initial_velocity, dtype=np.float64)
             if v0.shape != (2,) + grid.shape():
@@ -399,6 +419,9 @@ class Model:
         * fluid sound: h / sqrt(lambda_f / rho0);
         * convective: h / max(|u| + |v|).
 
+        With ``Numerics.fluid_model = "incompressible"`` there is no sound in the fluid: the
+        fluid-sound limit and the fluid's wave-damping bound are dropped (the solids' stay).
+
         With ``Numerics.viscosity = "implicit"`` the viscous limit is dropped (backward
         Euler), and so is the wave-damping limit: the transported fields (reference maps,
         fluid density) are then updated with the new velocity (symplectic Euler), under
@@ -434,6 +457,14 @@ class Model:
         damping = jnp.minimum(damping, jnp.where(nu_f > 0, 2.0 * nu_f / fl.lambda_f, jnp.inf))
         if implicit:  # symplectic transport: no damping limit
             damping = jnp.asarray(jnp.inf)
+        incompressible = self.numerics.fluid_model == "incompressible"
+        sound = jnp.asarray(jnp.inf) if incompressible else h / fl.sound_speed
+        if incompressible and not implicit:  # no sound: only the solids' wave damping
+            damping = jnp.where(
+                (fl.extra_viscosity > 0) & (len(params.laws) > 0),
+                2.0 * fl.extra_viscosity / M_max,
+                jnp.inf,
+            )
         viscous = h * h / (4.0 * jnp.maximum(nu, 1e-30))
         if implicit:  # backward Euler: no viscous limit
             viscous = jnp.asarray(jnp.inf)
@@ -442,7 +473,7 @@ class Model:
                 viscous,
                 h / c_solid,
                 damping,
-                h / fl.sound_speed,
+                sound,
                 h / jnp.maximum(vmax, 1e-30),
             ]
         )
@@ -566,7 +597,21 @@ class Model:
             vq, vqp = v_new, bc.pad_velocity(v_new, t + dt)
         else:
             vq, vqp = v, vp
-        if n.compression == "corner":
+        if self.projection is not None:
+            # incompressible: the fluid pressure is the projection's (rho_f stays rho0, so
+            # the pressure lambda_f (rho_f / rho0 - 1) in the stress above is zero)
+            # the anchors' velocities first; their nodes keep them (correction weight
+            # 1 - w_anchor), so the projected velocity is divergence-free with them
+            xi0 = jnp.asarray(self._xi0)
+            for k, s in enumerate(self.solids):
+                if s.anchor is not None:
+                    v_new, _ = s.anchor.apply(g, v_new, state.xi[k], xi0[k])
+            v_new = self.projection.project(v_new, d["rho"], t + dt, dt,
+                                            weight=self._anchor_free)
+            if implicit:
+                vq = v_new
+            rho_new = rho_f
+        elif n.compression == "corner":
             # the divergence at each node's top-right corner (a forward difference): the
             # negative transpose of the backward pressure gradient that div_node makes of
             # the bottom-left-node corner pressure (see Numerics), with that corner's fluid
@@ -580,8 +625,9 @@ class Model:
             compression = d["wf_c"][1:, 1:] * div_c[1:, 1:]
         else:
             compression = d["wf_n"] * divergence_centered(vqp[0], vqp[1], dx, dy, g=2)
-        drho = advect(rp, vq, dx, dy) - rho_f * compression
-        rho_new = rho_f + dt * drho
+        if self.projection is None:
+            drho = advect(rp, vq, dx, dy) - rho_f * compression
+            rho_new = rho_f + dt * drho
 
         if self.n_solids == 0:
             return state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new)
@@ -598,7 +644,9 @@ class Model:
         xi0 = jnp.asarray(self._xi0)
         for k, s in enumerate(self.solids):
             if s.anchor is not None:
-                v_new, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])
+                v_k, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])
+                if self.projection is None:  # incompressible: applied before the projection
+                    v_new = v_k
                 xi_new = xi_new.at[k].set(xk)
 
         # 9. pin the level sets, then extrapolate and smooth the maps

@@ -181,6 +181,15 @@ class Numerics:
     constant-coefficient FFT/DCT solve (``"fast"``), :mod:`refmap.viscosity`); then the
     adaptive time step drops the viscous limit and reports the next one
     (:meth:`refmap.model.Model.time_step`; docs/method.md, "Implicit viscosity").
+
+    ``fluid_model`` is ``"compressible"`` (default, the thesis's weakly compressible fluid,
+    p = lambda_f (rho_f / rho0 - 1)) or ``"incompressible"``: the fluid density stays at
+    rho0 and a pressure projection makes the velocity discretely divergence-free each step
+    (:mod:`refmap.projection`: conjugate gradients to relative residual
+    ``pressure_rtol``, preconditioned by the exact constant-coefficient FFT/DCT solve,
+    ``pressure_preconditioner = "fast"``, or by the diagonal, ``"jacobi"``); lambda_f is
+    then unused and the fluid-sound time-step limit is dropped (docs/method.md,
+    "Incompressible fluid").
     """
 
     blur_width: float = 2.0
@@ -207,6 +216,9 @@ class Numerics:
     viscosity: str = "explicit"
     viscosity_rtol: float = 1e-6
     viscosity_preconditioner: str = "jacobi"
+    fluid_model: str = "compressible"
+    pressure_rtol: float = 1e-10
+    pressure_preconditioner: str = "fast"
 
     def __post_init__(self):
         try:
@@ -227,6 +239,18 @@ class Numerics:
             raise ValueError(
                 "numerics viscosity_preconditioner must be 'jacobi' or 'fast', "
                 f"got {self.viscosity_preconditioner!r}"
+            )
+        if self.fluid_model not in ("compressible", "incompressible"):
+            raise ValueError(
+                "numerics fluid_model must be 'compressible' or 'incompressible', "
+                f"got {self.fluid_model!r}"
+            )
+        if not (isinstance(self.pressure_rtol, (int, float)) and 0 < self.pressure_rtol < 1):
+            raise ValueError(f"numerics pressure_rtol must be in (0, 1), got {self.pressure_rtol!r}")
+        if self.pressure_preconditioner not in ("fast", "jacobi"):
+            raise ValueError(
+                "numerics pressure_preconditioner must be 'fast' or 'jacobi', "
+                f"got {self.pressure_preconditioner!r}"
             )
         if self.band_force not in ("local", "solid"):
             raise ValueError(
