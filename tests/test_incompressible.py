@@ -165,7 +165,7 @@ def _poiseuille(ny, numerics):
     return float(np.max(np.abs(np.asarray(s.v[0]) - exact)) / 0.25), float(jnp.max(jnp.abs(s.v[1])))
 
 
-# measured at t = 2 (steady to 5e-5): max relative error 1.59e-2, 3.92e-3, 9.75e-4 on
+# measured at t = 2 (steady to 5e-5): max error / 0.25 1.56e-2, 3.90e-3, 9.74e-4 on
 # ny = 8, 16, 32 (order 2.0: the odd wall ghost's O(h^2) error)
 def test_poiseuille_profile():
     nums = Numerics(fluid_model="incompressible")
