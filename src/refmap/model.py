@@ -452,19 +452,15 @@ class Model:
             2.0 * fl.extra_viscosity / M_max,
             jnp.inf,
         )
-        # the same bound for sound waves in the fluid, damped by eta and the extra viscosity
-        nu_f = fl.eta + fl.extra_viscosity + fl.bulk_viscosity
-        damping = jnp.minimum(damping, jnp.where(nu_f > 0, 2.0 * nu_f / fl.lambda_f, jnp.inf))
+        incompressible = self.numerics.fluid_model == "incompressible"
+        if not incompressible:
+            # the same bound for sound waves in the fluid, damped by eta and the extra
+            # viscosity (an incompressible fluid has no sound: only the solids' bound)
+            nu_f = fl.eta + fl.extra_viscosity + fl.bulk_viscosity
+            damping = jnp.minimum(damping, jnp.where(nu_f > 0, 2.0 * nu_f / fl.lambda_f, jnp.inf))
         if implicit:  # symplectic transport: no damping limit
             damping = jnp.asarray(jnp.inf)
-        incompressible = self.numerics.fluid_model == "incompressible"
         sound = jnp.asarray(jnp.inf) if incompressible else h / fl.sound_speed
-        if incompressible and not implicit:  # no sound: only the solids' wave damping
-            damping = jnp.where(
-                (fl.extra_viscosity > 0) & (len(params.laws) > 0),
-                2.0 * fl.extra_viscosity / M_max,
-                jnp.inf,
-            )
         viscous = h * h / (4.0 * jnp.maximum(nu, 1e-30))
         if implicit:  # backward Euler: no viscous limit
             viscous = jnp.asarray(jnp.inf)

@@ -225,37 +225,22 @@ class Numerics:
             check_kernel(self.blend)
         except ValueError as e:
             raise ValueError(f"numerics {e}") from None
-        if self.compression not in ("corner", "centred"):
-            raise ValueError(
-                f"numerics compression must be 'corner' or 'centred', got {self.compression!r}"
-            )
-        if self.viscosity not in ("explicit", "implicit"):
-            raise ValueError(
-                f"numerics viscosity must be 'explicit' or 'implicit', got {self.viscosity!r}"
-            )
-        if not (isinstance(self.viscosity_rtol, (int, float)) and 0 < self.viscosity_rtol < 1):
-            raise ValueError(f"numerics viscosity_rtol must be in (0, 1), got {self.viscosity_rtol!r}")
-        if self.viscosity_preconditioner not in ("jacobi", "fast"):
-            raise ValueError(
-                "numerics viscosity_preconditioner must be 'jacobi' or 'fast', "
-                f"got {self.viscosity_preconditioner!r}"
-            )
-        if self.fluid_model not in ("compressible", "incompressible"):
-            raise ValueError(
-                "numerics fluid_model must be 'compressible' or 'incompressible', "
-                f"got {self.fluid_model!r}"
-            )
-        if not (isinstance(self.pressure_rtol, (int, float)) and 0 < self.pressure_rtol < 1):
-            raise ValueError(f"numerics pressure_rtol must be in (0, 1), got {self.pressure_rtol!r}")
-        if self.pressure_preconditioner not in ("fast", "jacobi"):
-            raise ValueError(
-                "numerics pressure_preconditioner must be 'fast' or 'jacobi', "
-                f"got {self.pressure_preconditioner!r}"
-            )
-        if self.band_force not in ("local", "solid"):
-            raise ValueError(
-                f"numerics band_force must be 'local' or 'solid', got {self.band_force!r}"
-            )
+        choices = {
+            "compression": ("corner", "centred"),
+            "viscosity": ("explicit", "implicit"),
+            "viscosity_preconditioner": ("jacobi", "fast"),
+            "fluid_model": ("compressible", "incompressible"),
+            "pressure_preconditioner": ("fast", "jacobi"),
+            "band_force": ("local", "solid"),
+        }
+        for name, (a, b) in choices.items():
+            value = getattr(self, name)
+            if value not in (a, b):
+                raise ValueError(f"numerics {name} must be {a!r} or {b!r}, got {value!r}")
+        for name in ("viscosity_rtol", "pressure_rtol"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0 < value < 1):
+                raise ValueError(f"numerics {name} must be in (0, 1), got {value!r}")
         pos = ["blur_width", "band", "stress_band", "cfl", "phi_max"]
         for name in pos:
             v = getattr(self, name)
