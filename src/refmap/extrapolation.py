@@ -29,7 +29,6 @@ With ``periodic=(px, py)`` the axis wraps.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import jax
@@ -157,7 +156,6 @@ def extrapolate_linear(
         raise ValueError(f"f must have shape (..., nx, ny), got {f.shape}")
     if iters is None:
         iters = default_sweeps(band, dx, dy)
-    px, py = periodic
     shape = jnp.broadcast_shapes(f.shape, phi.shape)
     f = jnp.broadcast_to(f, shape)
 
@@ -166,25 +164,69 @@ def extrapolate_linear(
     update_f = in_band & ~solid
     gx, gy, gvalid = solid_gradient(f, phi, dx, dy, periodic)
     update_g = in_band & ~gvalid
+    normal = unit_normal(phi, dx, dy, periodic)
+    nb = _DenseNeighbours(periodic)
+    fixed_g = dict(known=False, arrival=jnp.int32(iters + 1), value=(0.0, 0.0))
+    fixed_f = dict(known=False, arrival=jnp.int32(iters + 1), value=0.0)
+    # Values that are not known yet are never used (weight 0), but may be NaN: zero them.
+    values = (jnp.where(gvalid, gx, 0.0), jnp.where(gvalid, gy, 0.0), jnp.where(solid, f, 0.0))
+    f_ext, done = _extrapolate_core(
+        values,
+        gvalid,
+        solid,
+        update_g,
+        update_f,
+        normal[..., 0, :, :],
+        normal[..., 1, :, :],
+        nb,
+        fixed_g,
+        fixed_f,
+        iters,
+        dx,
+        dy,
+    )
+    return jnp.where(done, f_ext, f)
+
+
+class _DenseNeighbours:
+    """The four neighbours (x-, x+, y-, y+) of a grid array, a constant beyond an edge."""
+
+    def __init__(self, periodic):
+        self.px, self.py = periodic
+
+    def __call__(self, a, fill):
+        am, ap = _nb(a, -2, self.px, fill)
+        bm, bp = _nb(a, -1, self.py, fill)
+        return am, ap, bm, bp
+
+
+def _extrapolate_core(
+    values, gvalid, solid, update_g, update_f, nrm_x, nrm_y, nb, fixed_g, fixed_f, iters, dx, dy
+):
+    """The sweeps of :func:`extrapolate_linear` on any layout of the unknowns.
+
+    ``values = (gx, gy, f)`` and the masks are arrays of one layout (the grid, or a
+    compacted list of band nodes); ``nb(a, fill)`` returns the four neighbours of a layout
+    array, taking ``fill`` (a constant, or per-neighbour arrays) where the neighbour is not
+    part of the layout.  ``fixed_g``/``fixed_f`` hold those fills for the gradient's and
+    for f's ``known``, ``arrival`` and ``value``.  Returns ``(f, done)``: the swept f and the
+    nodes whose f was reached (to be written back).
+    """
+    never = jnp.int32(iters + 1)
+
+    def any_neighbour(k, fill):
+        km, kp, lm, lp = nb(k, fill)
+        return km | kp | lm | lp
 
     # Which values are known before sweep s depends on the geometry only (not on f), so it
     # is computed once (shared by every component using this phi) as an arrival sweep:
     # a node is known before sweep s iff arrival <= s.  A gradient becomes known in the sweep
     # after any 4-neighbour's gradient is; f in the sweep after any 4-neighbour's f is,
     # provided its own gradient is known by the end of that sweep.
-    never = jnp.int32(iters + 1)
-    x_nb = functools.partial(_nb, axis=-2, periodic=px, fill=False)
-    y_nb = functools.partial(_nb, axis=-1, periodic=py, fill=False)
-
-    def any_neighbour(k):
-        km, kp = x_nb(k)
-        lm, lp = y_nb(k)
-        return km | kp | lm | lp
-
     def arrive(s, state):
         gk, fk, ag, af = state
-        gk_new = gk | (update_g & any_neighbour(gk))
-        fk_new = fk | (update_f & gk_new & any_neighbour(fk))
+        gk_new = gk | (update_g & any_neighbour(gk, fixed_g["known"]))
+        fk_new = fk | (update_f & gk_new & any_neighbour(fk, fixed_f["known"]))
         ag = jnp.where(gk_new & ~gk, s + 1, ag)
         af = jnp.where(fk_new & ~fk, s + 1, af)
         return gk_new, fk_new, ag, af
@@ -195,25 +237,17 @@ def extrapolate_linear(
 
     # Static neighbour weights, order (x-, x+, y-, y+): |n_d| / h_d on the upwind (solid)
     # side of each axis, 0 on the other.
-    normal = unit_normal(phi, dx, dy, periodic)
-    nx_, ny_ = normal[..., 0, :, :], normal[..., 1, :, :]
-    wx = jnp.abs(nx_) / dx
-    wy = jnp.abs(ny_) / dy
+    wx = jnp.abs(nrm_x) / dx
+    wy = jnp.abs(nrm_y) / dy
     zero = jnp.zeros_like(wx)
     w_up = (
-        jnp.where(nx_ > 0, wx, zero),
-        jnp.where(nx_ < 0, wx, zero),
-        jnp.where(ny_ > 0, wy, zero),
-        jnp.where(ny_ < 0, wy, zero),
+        jnp.where(nrm_x > 0, wx, zero),
+        jnp.where(nrm_x < 0, wx, zero),
+        jnp.where(nrm_y > 0, wy, zero),
+        jnp.where(nrm_y < 0, wy, zero),
     )
-
-    def neighbour_arrivals(a):
-        am, ap = _nb(a, -2, px, never)
-        bm, bp = _nb(a, -1, py, never)
-        return am, ap, bm, bp
-
-    g_arr = neighbour_arrivals(ag)
-    f_arr = neighbour_arrivals(af)
+    g_arr = nb(ag, fixed_g["arrival"])
+    f_arr = nb(af, fixed_f["arrival"])
 
     def weights(arr, s):
         """Upwind weights of the known neighbours, or 1 per known neighbour if none."""
@@ -224,6 +258,9 @@ def extrapolate_linear(
         total = (c[0] + c[1]) + (c[2] + c[3])
         return c, 1 / jnp.where(total > 0, total, 1.0)
 
+    gx_fill, gy_fill = fixed_g["value"]
+    f_fill = fixed_f["value"]
+
     def sweep(s, state):
         # Both regimes are one formula over the 4 neighbours nb with weights c_nb:
         #   q = sum c q_nb / sum c,   f = sum c (f_nb + (x - x_nb) . g) / sum c,
@@ -232,17 +269,15 @@ def extrapolate_linear(
         gx, gy, f = state
         c, inv = weights(g_arr, s)
         new = []
-        for q in (gx, gy):
-            qxm, qxp = _nb(q, -2, px, 0.0)
-            qym, qyp = _nb(q, -1, py, 0.0)
+        for q, fill in ((gx, gx_fill), (gy, gy_fill)):
+            qxm, qxp, qym, qyp = nb(q, fill)
             new.append(((c[0] * qxm + c[1] * qxp) + (c[2] * qym + c[3] * qyp)) * inv)
         g_now = update_g & (ag <= s + 1)
         gx = jnp.where(g_now, new[0], gx)
         gy = jnp.where(g_now, new[1], gy)
 
         c, inv = weights(f_arr, s)
-        fxm, fxp = _nb(f, -2, px, 0.0)
-        fym, fyp = _nb(f, -1, py, 0.0)
+        fxm, fxp, fym, fyp = nb(f, f_fill)
         sx = dx * gx
         sy = dy * gy
         f_new = (
@@ -251,16 +286,13 @@ def extrapolate_linear(
         f = jnp.where(update_f & (af <= s + 1), f_new, f)
         return gx, gy, f
 
-    # Values that are not known yet are never used (weight 0), but may be NaN: zero them.
-    state = (jnp.where(gvalid, gx, 0.0), jnp.where(gvalid, gy, 0.0), jnp.where(solid, f, 0.0))
-    _, _, f_ext = lax.fori_loop(0, iters, jax.checkpoint(sweep, prevent_cse=False), state)
-    return jnp.where(update_f & (af <= iters), f_ext, f)
+    _, _, f_ext = lax.fori_loop(0, iters, jax.checkpoint(sweep, prevent_cse=False), values)
+    return f_ext, update_f & (af <= iters)
 
 
-def _second_differences(f, okx, oky, dx, dy, px, py):
+def _second_differences(f, okx, oky, dx, dy, nb, fill):
     """``(f_xx, f_yy)`` by 3-point differences, 0 where a stencil node is not valid."""
-    fxm, fxp = _nb(f, -2, px, 0.0)
-    fym, fyp = _nb(f, -1, py, 0.0)
+    fxm, fxp, fym, fyp = nb(f, fill)
     fxx = jnp.where(okx, (fxp - 2 * f + fxm) / (dx * dx), 0.0)
     fyy = jnp.where(oky, (fyp - 2 * f + fym) / (dy * dy), 0.0)
     return fxx, fyy
@@ -330,20 +362,71 @@ def smooth_extrapolated(
     """
     f = jnp.asarray(f)
     phi = jnp.asarray(phi)
-    px, py = periodic
     shape = jnp.broadcast_shapes(f.shape, phi.shape)
     f = jnp.broadcast_to(f, shape)
     h = jnp.minimum(dx, dy)
-    step = coef * h * h
 
     solid = phi < 0
     valid = phi <= band
     ext = valid & ~solid
-    interior = phi < -2 * h
-    vxm, vxp = _nb(valid, -2, px, False)
-    vym, vyp = _nb(valid, -1, py, False)
-    okx = vxm & vxp
-    oky = vym & vyp
+    nb = _DenseNeighbours(periodic)
+    vxm, vxp, vym, vyp = nb(valid, False)
+    limits = None
+    if fixed_sweeps is None:
+        limits = _interior_limits(f, phi < -2 * h, vxm & vxp, vym & vyp, dx, dy, nb, ratio, atol)
+    return _smooth_core(
+        f,
+        ext,
+        vxm & vxp,
+        vym & vyp,
+        limits,
+        nb,
+        0.0,
+        coef * h * h,
+        dx,
+        dy,
+        max_sweeps,
+        fixed_sweeps,
+        return_sweeps,
+        grid_ndim=2,
+    )
+
+
+def _interior_limits(f, interior, okx, oky, dx, dy, nb, ratio, atol):
+    """The smoothing's stopping limits ``ratio * max |f_dd| over the interior + atol``."""
+
+    def masked_max(a, mask):
+        return jnp.max(jnp.where(mask, jnp.abs(a), 0.0), axis=(-2, -1))
+
+    fxx0, fyy0 = _second_differences(f, okx, oky, dx, dy, nb, 0.0)
+    # interior values never change, so neither do these limits
+    return ratio * masked_max(fxx0, interior) + atol, ratio * masked_max(fyy0, interior) + atol
+
+
+def _smooth_core(
+    f,
+    ext,
+    okx,
+    oky,
+    limits,
+    nb,
+    fill,
+    step,
+    dx,
+    dy,
+    max_sweeps,
+    fixed_sweeps,
+    return_sweeps,
+    grid_ndim,
+):
+    """The sweeps of :func:`smooth_extrapolated` on any layout (see :func:`_extrapolate_core`):
+    ``f`` and the masks are layout arrays whose last ``grid_ndim`` axes are the layout's,
+    ``limits`` the per-batch stopping limits (None with ``fixed_sweeps``)."""
+    axes = tuple(range(-grid_ndim, 0))
+    batch = f.shape[:-grid_ndim]
+
+    def expand(a):
+        return a.reshape(a.shape + (1,) * grid_ndim)
 
     def sweep_with(f, fxx, fyy, active):
         return jnp.where(ext & active, f + step * (fxx + fyy), f)
@@ -351,22 +434,15 @@ def smooth_extrapolated(
     if fixed_sweeps is not None:
 
         def body(_, f):
-            fxx, fyy = _second_differences(f, okx, oky, dx, dy, px, py)
+            fxx, fyy = _second_differences(f, okx, oky, dx, dy, nb, fill)
             return sweep_with(f, fxx, fyy, True)
 
         f = lax.fori_loop(0, fixed_sweeps, body, f)
         if return_sweeps:
-            return f, jnp.full(shape[:-2], fixed_sweeps, dtype=jnp.int32)
+            return f, jnp.full(batch, fixed_sweeps, dtype=jnp.int32)
         return f
 
-    def masked_max(a, mask):
-        return jnp.max(jnp.where(mask, jnp.abs(a), 0.0), axis=(-2, -1))
-
-    fxx0, fyy0 = _second_differences(f, okx, oky, dx, dy, px, py)
-    # interior values never change, so neither do these limits
-    lim_xx = (ratio * masked_max(fxx0, interior) + atol)[..., None, None]
-    lim_yy = (ratio * masked_max(fyy0, interior) + atol)[..., None, None]
-    batch = shape[:-2]
+    lim_xx, lim_yy = (expand(lim) for lim in limits)
 
     def cond(state):
         k, _, active, _ = state
@@ -374,11 +450,11 @@ def smooth_extrapolated(
 
     def body(state):
         k, f, _, count = state
-        fxx, fyy = _second_differences(f, okx, oky, dx, dy, px, py)
+        fxx, fyy = _second_differences(f, okx, oky, dx, dy, nb, fill)
         # one reduction: is any band node above its limit in either component?
         excess = jnp.maximum(jnp.abs(fxx) - lim_xx, jnp.abs(fyy) - lim_yy)
-        active = jnp.max(jnp.where(ext, excess, -1.0), axis=(-2, -1)) > 0
-        f = sweep_with(f, fxx, fyy, active[..., None, None])
+        active = jnp.max(jnp.where(ext, excess, -1.0), axis=axes) > 0
+        f = sweep_with(f, fxx, fyy, expand(active))
         return k + 1, f, active, count + active.astype(jnp.int32)
 
     state = (jnp.int32(0), f, jnp.ones(batch, dtype=bool), jnp.zeros(batch, dtype=jnp.int32))
