@@ -361,6 +361,7 @@ NumericsSpec = _spec_from_dataclass(
         "dt_max": {"gt": 0},
         "dt_fixed": {"gt": 0},
         "phi_max": {"gt": 0},
+        "band_capacity": {"ge": 1},
     },
 )
 

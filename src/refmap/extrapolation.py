@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from refmap import narrowband
 from refmap.levelset import Periodic, _neighbours, unit_normal
 
 
@@ -67,18 +68,21 @@ def solid_gradient(f, phi, dx, dy, periodic: Periodic = (False, False)):
     """
     f = jnp.asarray(f)
     solid = jnp.asarray(phi) < 0
-    px, py = periodic
-    fxm, fxp = _nb(f, -2, px, 0.0)
-    fym, fyp = _nb(f, -1, py, 0.0)
-    sxm, sxp = _nb(solid, -2, px, False)
-    sym, syp = _nb(solid, -1, py, False)
+    nb = _DenseNeighbours(periodic)
+    return _solid_gradient_nb(f, nb(f, 0.0), solid, nb(solid, False), dx, dy)
+
+
+def _solid_gradient_nb(f, f_nb, solid, s_nb, dx, dy):
+    """:func:`solid_gradient` from the neighbours (x-, x+, y-, y+) of f and of the solid mask."""
+    fxm, fxp, fym, fyp = f_nb
+    sxm, sxp, sym, syp = s_nb
     gx = jnp.where(
         sxm & sxp, (fxp - fxm) / (2 * dx), jnp.where(sxp, (fxp - f) / dx, (f - fxm) / dx)
     )
     gy = jnp.where(
         sym & syp, (fyp - fym) / (2 * dy), jnp.where(syp, (fyp - f) / dy, (f - fym) / dy)
     )
-    return gx, gy, _gradient_valid(solid, periodic)
+    return gx, gy, solid & (sxm | sxp) & (sym | syp)
 
 
 def _gradient_valid(solid, periodic):
@@ -464,4 +468,175 @@ def _smooth_core(
     return f
 
 
-__all__ = ["default_sweeps", "extrapolate_linear", "smooth_extrapolated", "solid_gradient"]
+def extend(
+    f,
+    phi,
+    dx,
+    dy,
+    band,
+    capacity: int | None = None,
+    iters: int | None = None,
+    periodic: Periodic = (False, False),
+    smooth: dict | None = None,
+    tile: tuple[int, int] | None = None,
+):
+    """:func:`extrapolate_linear` then :func:`smooth_extrapolated`, for several solids at once.
+
+    ``f`` is ``(S, C, nx, ny)`` (C components per solid sharing its level set), ``phi``
+    ``(S, nx, ny)``; ``smooth`` holds the keyword arguments of the smoothing (``coef``,
+    ``max_sweeps``, ``ratio``, ``atol``, ``fixed_sweeps``; None: no smoothing).
+
+    With ``capacity=None`` every sweep runs over the whole grid.  With an integer
+    ``capacity`` (a number of tiles) the sweeps run on each solid's band only
+    (:mod:`refmap.narrowband`): the tiles (``tile`` nodes, default
+    :func:`refmap.narrowband.tile_shape`) that hold a node to update (``phi <= band``
+    outside the solid's valid-gradient interior), at most ``capacity`` per solid, are
+    gathered once, the extrapolation and smoothing sweep them, and the result is scattered
+    back; the arithmetic is the same node for node, so the result is bitwise that of the
+    full-grid sweeps.  If any solid's band covers more than ``capacity`` tiles, this call
+    falls back on the full-grid sweeps (same result, full cost).
+    """
+    f = jnp.asarray(f)
+    phi = jnp.asarray(phi)
+    if iters is None:
+        iters = default_sweeps(band, dx, dy)
+    if tile is None and capacity is not None:
+        tile = narrowband.tile_shape(phi.shape[-2:], periodic)
+
+    def dense(f, phi):
+        def one(f_k, phi_k):
+            out = extrapolate_linear(f_k, phi_k[None], dx, dy, band, iters, periodic)
+            if smooth is None:
+                return out
+            return smooth_extrapolated(out, phi_k[None], dx, dy, band, periodic=periodic, **smooth)
+
+        return jax.vmap(one)(f, phi)
+
+    if capacity is None or tile is None or f.shape[0] == 0:
+        return dense(f, phi)
+    ntx, nty = narrowband.n_tiles(phi.shape[-2:], tile)
+    capacity = int(min(capacity, ntx * nty))
+
+    def compact(f, phi):
+        return jax.vmap(
+            lambda f_k, phi_k: _extend_tiles(
+                f_k, phi_k, dx, dy, band, capacity, tile, iters, periodic, smooth
+            )
+        )(f, phi)
+
+    counts = band_tiles(phi, band, tile, periodic)
+    return lax.cond(jnp.all(counts <= capacity), compact, dense, f, phi)
+
+
+def _unknown(phi, band, periodic):
+    """The nodes the extrapolation updates: in the band and without a solid-only gradient."""
+    return (phi <= band) & ~_gradient_valid(phi < 0, periodic)
+
+
+def band_tiles(phi, band, tile, periodic: Periodic = (False, False)):
+    """Number of tiles per solid that :func:`extend` lists (``phi`` (S, nx, ny))."""
+    return jax.vmap(
+        lambda p: jnp.sum(narrowband.tile_flags(_unknown(p, band, periodic), tile), dtype=jnp.int32)
+    )(phi)
+
+
+def _extend_tiles(f, phi, dx, dy, band, capacity, tile, iters, periodic, smooth):
+    """:func:`extend` for one solid on its listed tiles (f (C, nx, ny), phi (nx, ny))."""
+    nbm = narrowband
+    tiles = nbm.build(_unknown(phi, band, periodic), capacity, tile, periodic)
+    nb = nbm.Neighbours(tiles)
+    never = jnp.int32(iters + 1)
+    slot = tiles.slot[:, None, None]
+
+    # tiles with two ghost rows; everything the sweeps need is formed on them, the first
+    # ghost row giving the fixed edge values next to tiles that are not listed
+    P = nbm.gather(phi, tiles, tile, periodic, jnp.inf)  # beyond an edge: neither solid nor band
+    F = nbm.gather(f, tiles, tile, periodic, 0.0)
+    solid2, valid2 = P < 0, P <= band
+    solid1, valid1, f1 = (nbm.interior(a, 1) for a in (solid2, valid2, F))
+    gx1, gy1, gvalid1 = _solid_gradient_nb(
+        f1, nbm.stencil_neighbours(F), solid1, nbm.stencil_neighbours(solid2), dx, dy
+    )
+    ag1 = jnp.where(gvalid1, 0, never).astype(jnp.int32)
+    af1 = jnp.where(solid1, 0, never).astype(jnp.int32)
+    gx1, gy1 = (jnp.where(gvalid1, g, 0.0) for g in (gx1, gy1))
+    f1z = jnp.where(solid1, f1, 0.0)
+
+    def inner(a):
+        return nbm.interior(a, 1)
+
+    gvalid, solid, valid = inner(gvalid1), inner(solid1), inner(valid1)
+    update_g = valid & ~gvalid & slot
+    update_f = valid & ~solid & slot
+    normal = nbm.gather(unit_normal(phi, dx, dy, periodic), tiles, tile, periodic, 0.0, halo=0)
+    fixed_g = dict(
+        known=nbm.halos(gvalid1), arrival=nbm.halos(ag1), value=(nbm.halos(gx1), nbm.halos(gy1))
+    )
+    fixed_f = dict(known=nbm.halos(solid1), arrival=nbm.halos(af1), value=nbm.halos(f1z))
+    f_ext, done = _extrapolate_core(
+        (inner(gx1), inner(gy1), inner(f1z)),
+        gvalid,
+        solid,
+        update_g,
+        update_f,
+        normal[0],
+        normal[1],
+        nb,
+        fixed_g,
+        fixed_f,
+        iters,
+        dx,
+        dy,
+    )
+    f_t = jnp.where(done, f_ext, inner(f1))
+    index = nbm.node_index(tiles, tile, phi.shape)
+    if smooth is None:
+        return nbm.scatter(f, index, f_t)
+
+    fixed_sweeps = smooth.get("fixed_sweeps")
+    h = jnp.minimum(dx, dy)
+    limits = None
+    if fixed_sweeps is None:
+        # the interior's second differences (phi < -2h), read from the extrapolated field
+        f = nbm.scatter(f, index, f_t)
+        dnb = _DenseNeighbours(periodic)
+        vxm, vxp, vym, vyp = dnb(phi <= band, False)
+        limits = _interior_limits(
+            f,
+            phi < -2 * h,
+            vxm & vxp,
+            vym & vyp,
+            dx,
+            dy,
+            dnb,
+            smooth.get("ratio", 0.25),
+            smooth.get("atol", 1e-3),
+        )
+    vm, vp, wm, wp = nbm.stencil_neighbours(valid1)
+    f_s = _smooth_core(
+        f_t,
+        update_f,
+        vm & vp,
+        wm & wp,
+        limits,
+        nb,
+        nbm.halos(f1),
+        smooth.get("coef", 0.025) * h * h,
+        dx,
+        dy,
+        smooth.get("max_sweeps", 80),
+        fixed_sweeps,
+        False,
+        grid_ndim=3,
+    )
+    return nbm.scatter(f, index, f_s)
+
+
+__all__ = [
+    "band_tiles",
+    "default_sweeps",
+    "extend",
+    "extrapolate_linear",
+    "smooth_extrapolated",
+    "solid_gradient",
+]

@@ -26,6 +26,7 @@ are advanced with the updated velocity; the explicit default is unchanged bit fo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -33,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from refmap import blend, extrapolation, levelset
+from refmap import blend, extrapolation, levelset, narrowband
 from refmap.boundary import Boundary, BoundaryConditions
 from refmap.grid import Grid
 from refmap.operators import (
@@ -187,6 +188,27 @@ class Model:
             with jax.ensure_compile_time_eval():
                 inside0 = [np.asarray(self.phi0(k, self._xi0[k])) < 0 for k in range(self.n_solids)]
             self.bc.glue(self._xi0 - np.stack([X, Y]), np.stack(inside0))
+        self.band_capacity = self._initial_band_capacity()
+
+    def _initial_band_capacity(self):
+        """Static number of band tiles per solid (``Numerics.band_sweeps = "band"``).
+
+        ``band_capacity`` times the largest number of tiles a solid's band covers at t = 0
+        (from ``phi0`` of the initial maps), plus 8, but not more than the grid's tiles;
+        None (full-grid sweeps) with ``band_sweeps = "grid"``, without solids, or when the
+        grid cannot be tiled (:func:`refmap.narrowband.tile_shape`).  A band that outgrows
+        it makes the step fall back on the full-grid sweeps (same result, full cost)."""
+        n = self.numerics
+        self.band_tile = narrowband.tile_shape(self.grid.shape(), self.bc.periodic)
+        if n.band_sweeps == "grid" or not self.solids or self.band_tile is None:
+            return None
+        shift = n.advected_band * self.h
+        with jax.ensure_compile_time_eval():
+            phi = jnp.stack([jnp.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)])
+            counts = np.asarray(extrapolation.band_tiles(
+                phi - shift, n.band * self.h - shift, self.band_tile, self.bc.periodic))
+        ntx, nty = narrowband.n_tiles(self.grid.shape(), self.band_tile)
+        return min(int(math.ceil(n.band_capacity * counts.max())) + 8, ntx * nty)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -256,37 +278,42 @@ class Model:
         The extrapolation starts from the nodes with ``phi < advected_band h``
         (:class:`Numerics`): by default the solid's own nodes; with ``advected_band > 0``
         also the nearest band nodes, which then keep their advected map."""
+        if not self.n_solids:
+            return xi
         Xn = jnp.asarray(self.grid.mesh("node"))
-
-        def one(xi_k, phi_k):
-            # extrapolate the displacement-like xi - x: identical for affine maps, and
-            # continuous across periodic edges; both components share one phi (and so the
-            # geometric pre-pass of the extrapolation)
-            return self._extend(xi_k - Xn, phi_k) + Xn
-
-        return jax.vmap(one)(xi, phi)
+        # extrapolate the displacement-like xi - x: identical for affine maps, and continuous
+        # across periodic edges; both components share one phi (and so the geometric
+        # pre-pass of the extrapolation)
+        return self._extend_all(xi - Xn, phi) + Xn
 
     def _extend(self, f, phi_k, fixed_sweeps=None):
-        """The band operator M of :meth:`extrapolate` on node field(s) ``f`` (c, nx, ny):
-        extrapolation from the nodes with ``phi < advected_band h`` and smoothing of the
-        extrapolated values.  ``fixed_sweeps`` overrides the smoothing's sweep rule
-        (``Numerics.fixed_smooth_sweeps``, else the adaptive stop)."""
+        """The band operator M of :meth:`extrapolate` on one solid's node field(s) ``f``
+        (c, nx, ny): extrapolation from the nodes with ``phi < advected_band h`` and
+        smoothing of the extrapolated values.  ``fixed_sweeps`` overrides the smoothing's
+        sweep rule (``Numerics.fixed_smooth_sweeps``, else the adaptive stop)."""
+        return self._extend_all(f[None], phi_k[None], fixed_sweeps)[0]
+
+    def _extend_all(self, f, phi, fixed_sweeps=None):
+        """:meth:`_extend` for every solid at once: ``f`` (S, c, nx, ny), ``phi`` (S, nx, ny)."""
         n = self.numerics
         shift = n.advected_band * self.h  # 0 by default: phi - 0.0 is phi, bit for bit
-        phi_k = (phi_k - shift)[None]
-        band = n.band * self.h - shift
-        kw = dict(dx=self.grid.dx, dy=self.grid.dy, periodic=self.bc.periodic)
-        f = extrapolation.extrapolate_linear(f, phi_k, band=band, **kw)
-        return extrapolation.smooth_extrapolated(
-            f,
-            phi_k,
-            band=band,
+        smooth = dict(
             coef=n.smooth_coef,
             max_sweeps=n.smooth_max_sweeps,
             ratio=n.smooth_ratio,
             atol=n.smooth_atol,
             fixed_sweeps=n.fixed_smooth_sweeps if fixed_sweeps is None else fixed_sweeps,
-            **kw,
+        )
+        return extrapolation.extend(
+            f,
+            phi - shift,
+            self.grid.dx,
+            self.grid.dy,
+            n.band * self.h - shift,
+            capacity=self.band_capacity,
+            tile=self.band_tile,
+            periodic=self.bc.periodic,
+            smooth=smooth,
         )
 
     def band_force_to_solid(self, state: State, d):

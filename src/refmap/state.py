@@ -156,6 +156,14 @@ class Numerics:
     extrapolation (:meth:`refmap.model.Model.band_force_to_solid`), so that the band's
     stress does exactly the work that changes its stored energy (docs/method.md).
 
+    ``band_sweeps`` says where the extrapolation and smoothing sweeps of each solid's map
+    run: ``"band"`` (default) on a list of that solid's band nodes only
+    (:mod:`refmap.narrowband`, gathered once per step; the result is bitwise that of the
+    full-grid sweeps), ``"grid"`` over the whole grid.  The list holds ``band_capacity``
+    (>= 1, default 2) times the solid's band nodes at t = 0, plus two grid rows; a band that
+    outgrows it (a body stretched to more than that perimeter) makes the step fall back on
+    the full-grid sweeps: same result, full cost (docs/benchmarks.md).
+
     ``compression`` picks the velocity divergence in the fluid-density update
     ``d rho_f / dt = -v . grad rho_f - w_f rho_f div v``:
 
@@ -213,6 +221,8 @@ class Numerics:
     phi_max: float = 12.0
     compression: str = "centred"
     band_force: str = "local"
+    band_sweeps: str = "band"
+    band_capacity: float = 2.0
     viscosity: str = "explicit"
     viscosity_rtol: float = 1e-6
     viscosity_preconditioner: str = "jacobi"
@@ -232,6 +242,7 @@ class Numerics:
             "fluid_model": ("compressible", "incompressible"),
             "pressure_preconditioner": ("fast", "jacobi"),
             "band_force": ("local", "solid"),
+            "band_sweeps": ("band", "grid"),
         }
         for name, (a, b) in choices.items():
             value = getattr(self, name)
@@ -241,6 +252,8 @@ class Numerics:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 < value < 1):
                 raise ValueError(f"numerics {name} must be in (0, 1), got {value!r}")
+        if not (isinstance(self.band_capacity, (int, float)) and self.band_capacity >= 1):
+            raise ValueError(f"numerics band_capacity must be a number >= 1, got {self.band_capacity!r}")
         pos = ["blur_width", "band", "stress_band", "cfl", "phi_max"]
         for name in pos:
             v = getattr(self, name)
