@@ -133,24 +133,6 @@ def test_base_case_loads_with_every_section():
     assert again.to_dict() == case.to_dict()
 
 
-def test_thin_thickness_round_trips_and_reaches_the_model():
-    """A solid's optional thin_thickness (the thin-body correction) is read, written back
-    only where it is set, and gives the model its blend shift; left out it is None and
-    the model has none."""
-    d = copy.deepcopy(BASE)
-    d["solids"][0]["thin_thickness"] = 0.25
-    case = case_from_dict(d).case
-    assert case.solids[0].thin_thickness == 0.25 and case.solids[1].thin_thickness is None
-    text = case_to_toml(case)
-    assert text.count("thin_thickness = ") == 1
-    back = case_from_dict(tomllib.loads(text)).case
-    assert back == case and back.to_dict() == case.to_dict()
-    model, _ = back.build()
-    assert model.blend_shift[0] > 0 and model.blend_shift[1] == 0.0
-    assert model.mass_scale[0] > 1 and model.mass_scale[1] == 1.0
-    assert case_from_dict(BASE).case.build()[0].blend_shift is None
-
-
 def test_contact_table_round_trips_and_reaches_the_model():
     """[contact] gives Case.contact (every key, defaults for the ones left out), writes back
     to an equal table, and Case.build() hands it to the model as its body force; without
@@ -257,8 +239,6 @@ def _delete(path):
 
 MALFORMED = [
     (_set(("solids", 0, "law", "G"), -3), "solids[0].law.G: must be > 0 (got -3)"),
-    (_set(("solids", 1, "thin_thickness"), -0.1), "solids[1].thin_thickness: must be > 0 (got -0.1)"),
-    (_set(("solids", 0, "thin_thickness"), "thin"), "solids[0].thin_thickness: must be a number"),
     (_rename(("grid",), "grd"), "unknown key 'grd' (did you mean 'grid'?)"),
     (_set(("boundary", "right"), "periodic"), "boundary.left: inflow segment on a periodic edge"),
     (

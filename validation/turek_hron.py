@@ -192,16 +192,9 @@ DT_FACTOR = 0.25  # dt = DT_FACTOR h / c_L (stability limit 0.35 with solid_visc
 
 # --------------------------------------------------------------------------- CSM
 def make_csm(
-    case: str,
-    nt: int,
-    rho_f: float = 100.0,
-    gamma_factor: float = 3.0,
-    damp_all: bool = False,
-    thin: bool = False,
+    case: str, nt: int, rho_f: float = 100.0, gamma_factor: float = 3.0, damp_all: bool = False
 ):
-    """Model, params and settings of CSM1/CSM2 with ``nt`` cells across the flag; ``thin``
-    switches on the thin-body correction (``Solid.thin_thickness`` = the flag's thickness),
-    which gives the blurred flag the sharp flag's bending stiffness."""
+    """Model, params and settings of CSM1/CSM2 with ``nt`` cells across the flag."""
     mu = MU_S[case]
     h = THICK / nt
     c_l = longitudinal_speed(mu)
@@ -227,19 +220,12 @@ def make_csm(
     # fluid resisted the flag's motion, overdamping it 2-3x.)
     damp = SolidDamping(
         eta=solid_viscosity(c_l, h),
-        # (with the thin-body correction the flag's bending stiffness is the sharp one's)
-        gamma=gamma_factor * omega * (1.0 if thin else math.sqrt(1 + 24 / nt**2)),
+        gamma=gamma_factor * omega * math.sqrt(1 + 24 / nt**2),
         damp_all=damp_all,
         gravity=(0.0, -GRAV),
         zeta=zeta,
     )
-    solid = Solid(
-        shape=BODY,
-        law=svk(mu),
-        anchor=RegionAnchor(CYL),
-        name="flag",
-        thin_thickness=THICK if thin else None,
-    )
+    solid = Solid(shape=BODY, law=svk(mu), anchor=RegionAnchor(CYL), name="flag")
     numerics = Numerics(dt_fixed=dt)
     model = Model(grid, (solid,), Boundary(), numerics, body_forces=(damp,))
     params = Params(fluid=fluid, laws=(solid.law,), gravity=(0.0, 0.0))
@@ -260,9 +246,6 @@ def make_csm(
         damp_all=damp_all,
         omega1=omega,
         domain=[ax, bx, ay, by],
-        thin=thin,
-        blend_shift_h=0.0 if model.blend_shift is None else float(model.blend_shift[0] / h),
-        mass_scale=1.0 if model.mass_scale is None else float(model.mass_scale[0]),
     )
     return model, params, info
 
@@ -291,17 +274,16 @@ def run_csm(
     rho_f: float = 100.0,
     gamma_factor: float = 3.0,
     damp_all: bool = False,
-    thin: bool = False,
 ):
     """Run CSM1/2 until the tip is at rest; returns the result dict (also written to out)."""
     model, params, info = make_csm(
-        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all, thin=thin
+        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all
     )
     if t_max is None:
         t_max = 12.0 / info["omega1"]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    tag = f"{case}_nt{nt}" + ("_thin" if thin else "")
+    tag = f"{case}_nt{nt}"
     state = model.initial_state(params)
     advance = jax.jit(model.advance)
     solid_mask = lambda s: s.phi[0] < 0  # noqa: E731
@@ -359,15 +341,7 @@ def run_csm(
     f.close()
     save_state(out / f"{tag}_state.npz", state)
     return summarize_csm(
-        case,
-        nt,
-        out,
-        ok=ok,
-        rho_f=rho_f,
-        tol=tol,
-        gamma_factor=gamma_factor,
-        damp_all=damp_all,
-        thin=thin,
+        case, nt, out, ok=ok, rho_f=rho_f, tol=tol, gamma_factor=gamma_factor, damp_all=damp_all
     )
 
 
@@ -391,15 +365,12 @@ def summarize_csm(
     tol: float | None = None,
     gamma_factor: float = 3.0,
     damp_all: bool = False,
-    thin: bool = False,
 ):
     """Result dict of a CSM run from its CSV history (the last line is the answer; the
     spread of u_y over the last 1 / omega1 measures how far from rest it still is)."""
-    model, params, info = make_csm(
-        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all, thin=thin
-    )
+    _, _, info = make_csm(case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all)
     out = Path(out)
-    tag = f"{case}_nt{nt}" + ("_thin" if thin else "")
+    tag = f"{case}_nt{nt}"
     with open(out / f"{tag}.csv") as f:
         rows = [[float(x) for x in r] for r in list(csv.reader(f))[1:]]
     if tol is not None:  # cut the history where the rest criterion with this tol first holds
@@ -910,11 +881,6 @@ def main(argv=None):
         "--gamma-factor", type=float, default=3.0, help="CSM: damping rate / omega1_blur"
     )
     ap.add_argument("--damp-all", action="store_true", help="CSM: damp the fluid's mass too")
-    ap.add_argument(
-        "--thin",
-        action="store_true",
-        help="CSM: thin-body correction (Solid.thin_thickness = the flag's thickness)",
-    )
     ap.add_argument("--gamma", type=float, default=None, help="FSI1: flag mass damping (1/s)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     ap.add_argument(
@@ -935,7 +901,6 @@ def main(argv=None):
             rho_f=a.rho_f,
             gamma_factor=a.gamma_factor,
             damp_all=a.damp_all,
-            thin=a.thin,
         )
     elif a.case == "cfd1":
         r = run_cfd1(a.ny, t_end=a.t_end or 8.0, out=a.out)

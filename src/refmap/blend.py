@@ -24,16 +24,6 @@ bending stiffness is therefore too large by the factor ``1 + C (h / t)^2`` with
 
 :func:`first_moment` and :func:`bending_factor` return these; the tests check them against
 quadrature of the kernels and against the second moment of a sampled blended plate.
-
-**Thin-body correction** (opt-in, ``Solid.thin_thickness``).  Blending at ``phi + delta``
-instead of ``phi`` moves both blurred faces of the plate inward by ``delta``: the plate is
-then the blend of a sharp plate ``tau = t - 2 delta`` thick, with the second moment
-``tau^3 / 12 + 2 tau |m1|``.  Asking for ``t^3 / 12`` gives ``tau^3 + 24 |m1| tau = t^3``,
-i.e. ``delta = 4 |m1| / t`` to leading order.  The zeroth moment (mass, stretching
-stiffness) is then ``tau`` instead of ``t``: the density is scaled by ``t / tau`` to keep
-the mass, the stretching stiffness stays ``tau / t`` too soft.  :func:`thin_shift` solves
-the condition on the exact blended profile (the faces' blurs overlap at a few cells
-across, where the leading-order formula is 5 % off for erf at 4 cells).
 """
 
 from __future__ import annotations
@@ -41,7 +31,6 @@ from __future__ import annotations
 import math
 
 import jax.numpy as jnp
-import numpy as np
 from jax.scipy.special import erf, erfc
 
 KERNELS = ("erf", "sine")
@@ -105,49 +94,4 @@ def bending_factor(kernel: str, width_h: float, cells_across: float) -> float:
     return 1.0 + 24.0 * first_moment(kernel, width_h) / cells_across**2
 
 
-def _plate_moments(kernel: str, width_h: float, cells_across: float, shift: float, n: int):
-    """Zeroth and second moments (h = 1) of the plate ``cells_across`` thick blended at
-    ``|x| - t / 2 + shift``: midpoint rule on ``n`` points over the half-plate and its blur."""
-    half = 0.5 * cells_across + support(kernel, width_h) + 1.0
-    dx = half / n
-    x = (np.arange(n) + 0.5) * dx
-    chi = 1.0 - np.asarray(heaviside(x - 0.5 * cells_across + shift, kernel, width_h))
-    return 2.0 * float(np.sum(chi)) * dx, 2.0 * float(np.sum(chi * x**2)) * dx
-
-
-def thin_shift(kernel: str, width_h: float, cells_across: float, n: int = 100_000):
-    """The thin-body correction for a plate ``cells_across`` cells thick: ``(delta, scale)``.
-
-    ``delta`` (in cells) is the inward shift of the blend, ``H(phi + delta h)``, that gives
-    the blended plate the sharp plate's second moment ``t^3 / 12`` (bisection on the
-    sampled profile; ``4 |m1| / t`` to leading order), and ``scale = t / M0`` the density
-    factor that gives it back the sharp plate's mass (``M0`` the shifted profile's zeroth
-    moment; ``scale - 1`` is also how much too soft in stretching the shifted plate is,
-    ``1 / scale`` being its stretching stiffness over the sharp plate's)."""
-    t = cells_across
-    if not (isinstance(t, (int, float)) and math.isfinite(t) and t > 0):
-        raise ValueError(f"cells_across must be a finite number > 0, got {cells_across!r}")
-    target = t**3 / 12.0
-    lo, hi = 0.0, 0.5 * t + support(kernel, width_h)
-    if _plate_moments(kernel, width_h, t, lo, n)[1] <= target:
-        return 0.0, t / _plate_moments(kernel, width_h, t, lo, n)[0]
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        if _plate_moments(kernel, width_h, t, mid, n)[1] > target:
-            lo = mid
-        else:
-            hi = mid
-    delta = 0.5 * (lo + hi)
-    return delta, t / _plate_moments(kernel, width_h, t, delta, n)[0]
-
-
-__all__ = [
-    "KERNELS",
-    "bending_factor",
-    "check_kernel",
-    "first_moment",
-    "heaviside",
-    "presence",
-    "support",
-    "thin_shift",
-]
+__all__ = ["KERNELS", "bending_factor", "check_kernel", "first_moment", "heaviside", "presence", "support"]

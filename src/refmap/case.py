@@ -381,7 +381,6 @@ class Case:
                     "strain_center": list(s.strain_center),
                     "velocity": list(s.velocity),
                     "anchor": None if s.anchor is None else s.anchor.to_dict(),
-                    **({} if s.thin_thickness is None else {"thin_thickness": s.thin_thickness}),
                 }
                 for s in self.solids
             ],

@@ -14,8 +14,7 @@ A case file mirrors :class:`refmap.case.Case`::
     [contact]   optional: the contact body force of refmap.contact.Contact
     [initial_velocity]  optional: u, v (formulas in x, y) or file (.npy / .h5, (2, nx, ny))
     [[solids]]  name, shape (a geometry table, CSG nested), law (a material table),
-                strain, strain_center, velocity, anchor (region or pivot),
-                thin_thickness (optional: the thin-body correction)
+                strain, strain_center, velocity, anchor (region or pivot)
 
 Public API
 ----------
@@ -812,7 +811,6 @@ class SolidSpec(_Table):
     strain_center: Pair = (0.0, 0.0)
     velocity: Pair = (0.0, 0.0)
     anchor: Any = None
-    thin_thickness: Pos | None = None
 
     @field_validator("anchor", mode="before")
     @classmethod
@@ -1349,7 +1347,6 @@ def _assemble(spec) -> Case:
                     velocity=s.velocity,
                     anchor=s.anchor,
                     name=s.name,
-                    thin_thickness=s.thin_thickness,
                 )
             )
         except ValueError as e:
@@ -1739,8 +1736,6 @@ def _case_doc(case: Case, base_dir=None) -> dict:
             "velocity": list(s.velocity),
             "shape": shape,
         }
-        if s.thin_thickness is not None:
-            d["thin_thickness"] = s.thin_thickness
         if s.anchor is not None:
             a = dict(s.anchor.to_dict())
             for key in a:
@@ -1770,8 +1765,7 @@ _COMMENTS = {
     ("initial_velocity",): "velocity at t = 0 of fluid and solids: formulas u, v in x and y, or a"
     " file (2, nx, ny);\neach solid's velocity is added inside it",
     ("solids",): "a solid: shape in reference coordinates, material law, initial map\n"
-    "xi = strain (x - strain_center) + strain_center, initial velocity, optional anchor,\n"
-    "optional thin_thickness (the thin-body correction for a plate that thick)",
+    "xi = strain (x - strain_center) + strain_center, initial velocity, optional anchor",
 }
 
 

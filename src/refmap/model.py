@@ -26,7 +26,6 @@ are advanced with the updated velocity; the explicit default is unchanged bit fo
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -70,16 +69,8 @@ class Solid:
     velocity: tuple = (0.0, 0.0)
     anchor: Any = None
     name: str = "solid"
-    thin_thickness: float | None = None
 
     def __post_init__(self):
-        t = self.thin_thickness
-        if t is not None:
-            if isinstance(t, bool) or not isinstance(t, (int, float, np.floating, np.integer)) \
-                    or not (math.isfinite(float(t)) and float(t) > 0):
-                raise ValueError(f"solid {self.name!r}: thin_thickness must be None or a finite "
-                                 f"number > 0, got {t!r}")
-            object.__setattr__(self, "thin_thickness", float(t))
         A = np.asarray(self.strain, dtype=float)
         if A.shape != (2, 2) or not np.all(np.isfinite(A)):
             raise ValueError(f"solid {self.name!r}: strain must be a finite 2x2 matrix, got {self.strain!r}")
@@ -155,22 +146,6 @@ class Model:
         self.body_forces = tuple(body_forces)
         self.bc = BoundaryConditions(grid, self.boundary)
         self.h = grid.h
-        # the thin-body correction (Solid.thin_thickness): per-solid inward blend shift
-        # (length units) and density factor; None when no solid asks for it, so the default
-        # step is unchanged bit for bit
-        self.blend_shift = self.mass_scale = None
-        if any(s.thin_thickness is not None for s in self.solids):
-            shift, scale = [], []
-            for s in self.solids:
-                if s.thin_thickness is None:
-                    d, m = 0.0, 1.0
-                else:
-                    d, m = blend.thin_shift(self.numerics.blend, self.numerics.blur_width,
-                                            s.thin_thickness / self.h)
-                shift.append(d * self.h)
-                scale.append(m)
-            self.blend_shift = np.asarray(shift)
-            self.mass_scale = np.asarray(scale)
         self.implicit_viscosity = (
             ImplicitViscosity(self, rtol=self.numerics.viscosity_rtol,
                               preconditioner=self.numerics.viscosity_preconditioner)
@@ -214,15 +189,6 @@ class Model:
             self.bc.glue(self._xi0 - np.stack([X, Y]), np.stack(inside0))
 
     # ------------------------------------------------------------------ helpers
-    def blend_weights(self, phi):
-        """Blend weights H_k (N, ...) of the stacked level sets ``phi`` (N, ...) with the
-        model's kernel and width, shifted inward by ``blend_shift`` for the solids with a
-        thin-body correction (:class:`Solid`'s ``thin_thickness``)."""
-        if self.blend_shift is not None:
-            shift = jnp.asarray(self.blend_shift).reshape((-1,) + (1,) * (jnp.ndim(phi) - 1))
-            phi = phi + shift
-        return blend.heaviside(phi, self.numerics.blend, self.numerics.blur_width * self.h)
-
     @property
     def n_solids(self) -> int:
         return len(self.solids)
@@ -415,7 +381,8 @@ class Model:
         phi = jnp.stack(phis) if phis else jnp.zeros((0, nx, ny))
         v = jnp.zeros((2, nx, ny)) if self.initial_velocity is None else jnp.asarray(self.initial_velocity)
         if self.n_solids:
-            ws, _ = solid_fractions(self.blend_weights(phi))
+            H = blend.heaviside(phi, self.numerics.blend, self.numerics.blur_width * self.h)
+            ws, _ = solid_fractions(H)
             for k, s in enumerate(self.solids):
                 v = v + ws[k][None] * jnp.asarray(s.velocity)[:, None, None]
         rho_f = jnp.full((nx, ny), params.fluid.rho0, dtype=jnp.float64)
@@ -555,8 +522,9 @@ class Model:
 
         phip = bc.pad_linear(state.phi)[..., 1:-1, 1:-1]
         phic = corner_average(phip)
-        Hc = self.blend_weights(phic)
-        Hn = self.blend_weights(state.phi)
+        w = n.blur_width * h
+        Hc = blend.heaviside(phic, n.blend, w)
+        Hn = blend.heaviside(state.phi, n.blend, w)
         ws_c, wf_c = solid_fractions(Hc)
         ws_n, wf_n = solid_fractions(Hn)
 
@@ -575,8 +543,6 @@ class Model:
         sig = jnp.where(valid[..., None, None], sig, 0.0)
         rho0 = rho0[:, None, None]
         rho_s = jnp.where(valid, rho0 * det, rho0)
-        if self.mass_scale is not None:  # the thin-body correction keeps the plate's mass
-            rho_s = rho_s * jnp.asarray(self.mass_scale)[:, None, None]
 
         sxx = wf_c * sxx_f + jnp.sum(ws_c * sig[..., 0, 0], axis=0)
         sxy = wf_c * sxy_f + jnp.sum(ws_c * sig[..., 0, 1], axis=0)
