@@ -1,0 +1,102 @@
+"""The band layout of the sweeps (refmap.narrowband): same result as the full-grid sweeps."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+import refmap  # noqa: F401  (float64)
+from refmap import narrowband
+from refmap.extrapolation import band_tiles, extend
+from refmap.grid import Grid
+from refmap.scenarios import get_case
+from refmap.state import Numerics
+
+SMOOTH = {
+    "none": None,
+    "adaptive": dict(coef=0.025, max_sweeps=80, ratio=0.25, atol=1e-3, fixed_sweeps=None),
+    "fixed": dict(fixed_sweeps=7),
+}
+
+
+def _fields(nx, ny):
+    g = Grid(nx, ny)
+    X, Y = g.mesh()
+    arm = np.minimum(
+        np.hypot(np.maximum(abs(X) - 1.1, 0), Y) - 0.4,
+        np.hypot(X, np.maximum(abs(Y) - 1.1, 0)) - 0.4,
+    )
+    # a disc, a cross with concave corners, a disc cut by the top-right corner of the box
+    phis = np.stack([np.hypot(X - 0.1, Y + 0.05) - 0.8, arm, np.hypot(X - 1.7, Y - 1.8) - 0.5])
+    f = np.stack([np.stack([np.sin(2 * X + 1) * np.cos(1.5 * Y), X * Y]) for _ in range(3)])
+    return g, phis, f
+
+
+@pytest.mark.parametrize(
+    "shape, periodic, smooth",
+    [
+        ((100, 70), (False, False), "adaptive"),  # padded tiles at the far edges
+        ((100, 70), (False, False), "fixed"),
+        ((96, 72), (True, False), "none"),
+        ((96, 72), (True, True), "adaptive"),  # tiles of 16 x 18; the corner disc wraps
+        ((96, 72), (False, True), "fixed"),
+    ],
+)
+def test_tiles_equal_full_grid_sweeps(shape, periodic, smooth):
+    g, phis, f = _fields(*shape)
+    band = 6 * g.h
+    tile = narrowband.tile_shape(shape, periodic)
+    counts = np.asarray(band_tiles(phis, band, tile, periodic))
+    sm = SMOOTH[smooth]
+
+    def run(capacity):
+        return np.asarray(
+            jax.jit(
+                lambda f, p: extend(
+                    f, p, g.dx, g.dy, band, capacity, periodic=periodic, smooth=sm, tile=tile
+                )
+            )(f, phis)
+        )
+
+    dense = run(None)
+    tiles = run(int(counts.max()) + 1)
+    # the same arithmetic node for node; XLA may fuse it differently (last-bit differences)
+    scale = np.abs(dense).max()
+    assert np.abs(tiles - dense).max() <= 1e-14 * scale
+    # a band that does not fit falls back on the full-grid sweeps: bitwise the dense result
+    np.testing.assert_array_equal(run(int(counts.max()) - 1), dense)
+    # every node outside the bands is untouched
+    outside = np.broadcast_to((phis > band)[:, None], f.shape)
+    np.testing.assert_array_equal(tiles[outside], f[outside])
+
+
+def test_tile_shape_on_periodic_axes():
+    assert narrowband.tile_shape((100, 70)) == (16, 16)
+    assert narrowband.tile_shape((96, 72), (True, True)) == (16, 18)
+    assert narrowband.tile_shape((24, 20), (True, True)) == (12, 20)  # divisors nearest 16
+    assert narrowband.tile_shape((101, 64), (True, False)) is None  # prime: no tiling
+
+
+@pytest.mark.parametrize("name", ["rotor", "two_balls"])
+def test_model_band_sweeps_equal_grid_sweeps(name):
+    case = get_case(name, 96)
+    out = {}
+    for mode in ("grid", "band"):
+        c = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps=mode))
+        model, params = c.build()
+        if mode == "band":
+            assert model.band_capacity is not None  # tiled (36 tiles of 16 x 16)
+        s = model.initial_state(params)
+        out[mode] = jax.jit(lambda s, model=model, params=params: model.run_steps(s, params, 10))(s)
+    for k in ("v", "rho_f", "xi", "phi"):
+        a, b = np.asarray(getattr(out["grid"], k)), np.asarray(getattr(out["band"], k))
+        assert np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0), k
+
+
+@pytest.mark.parametrize(
+    "kw, msg", [({"band_sweeps": "list"}, "band_sweeps"), ({"band_capacity": 0.5}, "band_capacity")]
+)
+def test_bad_band_numerics_refused(kw, msg):
+    with pytest.raises(ValueError, match=msg):
+        Numerics(**kw)
