@@ -215,12 +215,13 @@ def test_rematerialisation_strategies_agree(fluid_model):
             assert np.all(np.isfinite(np.asarray(a)))
 
 
-@pytest.mark.parametrize("n, levels", [(10, 3), (7, 2), (9, 2), (13, 4), (1, 3), (5, 1)])
+@pytest.mark.parametrize("n, levels", [(11, 3), (7, 2), (9, 2), (13, 4), (1, 3), (5, 1)])
 def test_nested_checkpoints_agree_with_sqrt(fluid_model, n, levels):
-    """checkpoint="nested": levels nested scans, the steps past n skipped (10 steps in
-    3 levels: 2 x 2 x 3 = 12, two skipped; 9 in 2: 3 x 3, none; 13 in 4: 2^4 = 16, three
-    skipped...).  Same final state as Model.run_steps, same gradient as "sqrt" (1e-12), and
-    the same observations, in order."""
+    """checkpoint="nested": levels nested scans, the steps past n computed and discarded
+    (11 steps in 3 levels: 2 x 2 x 3 = 12, one discarded; 7 in 2: 2 x 4, one; 9 in 2:
+    3 x 3, none; 13 in 4: 2^4, three; 1 in 3: none, the length-1 scans dropped).  Same
+    final state as Model.run_steps, same gradient as "sqrt" (1e-12), and the same
+    observations, in order."""
     model, state, params = fluid_model
     dt = 0.01
     ref = jax.jit(lambda s: model.run_steps(s, params, n, dt=dt))(state)
@@ -262,7 +263,7 @@ def test_nested_checkpoints_agree_with_sqrt(fluid_model, n, levels):
 
 def test_nested_chunks():
     assert rd.nested_chunks(10000, 4) == (10, 10, 10, 10)
-    assert rd.nested_chunks(10000, 3) == (21, 22, 22)
+    assert rd.nested_chunks(10000, 3) == (19, 22, 24)  # 32 steps discarded, 65 states
     assert rd.nested_chunks(10000, 2) == (100, 100)
     assert rd.nested_chunks(1, 3) == (1, 1, 1)
     assert rd.nested_chunks(7, 1) == (7,)
@@ -270,8 +271,10 @@ def test_nested_chunks():
         for k in (2, 3, 5):
             cs = rd.nested_chunks(n, k)
             c = min(x for x in range(1, n + 1) if x**k >= n)  # ceil(n^(1/k))
-            assert len(cs) == k and math.prod(cs) >= n and max(cs) <= c, (n, k, cs)
-            assert math.prod(cs) // min(cs) < n or min(cs) == 1, (n, k, cs)  # none too long
+            waste = math.prod(cs) - n
+            assert len(cs) == k and waste >= 0 and sum(cs) <= k * (c + 2), (n, k, cs)
+            # at most 5 % of the steps discarded, else no more states than c^k would keep
+            assert waste <= 0.05 * n or sum(cs) <= k * c, (n, k, cs)
     with pytest.raises(ValueError, match="levels must be an integer >= 1, got 0"):
         rd.nested_chunks(10, 0)
 
