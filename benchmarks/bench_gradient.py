@@ -3,7 +3,11 @@
 For each grid size and step count: the forward run (``refmap.differentiable.rollout``, no
 rematerialisation, loss only) and the gradient of the loss with respect to the parameters
 and the initial velocity, with ``checkpoint="sqrt"`` (nested scan, ~sqrt(n) chunks, every
-chunk and step rematerialised), ``"step"`` and ``None`` (no rematerialisation).
+chunk and step rematerialised), ``"nested"`` with k levels (named ``nested3``,
+``nested4``, ...: k nested scans of ~n^(1/k) steps), ``"step"`` and ``None`` (no
+rematerialisation).  The ``states`` column is the number of states the strategy's
+backward pass keeps by construction (``"sqrt"``: outer plus inner scan lengths;
+``nested``: the sum of its scan lengths; ``"step"``: n).
 
 * Memory: the compiled executables' ``memory_analysis()`` (XLA's temporary buffers plus
   arguments and outputs), so no run is needed: the 10000-step figures are exact for what
@@ -18,6 +22,8 @@ fixed smoothing sweeps), step size the adaptive one of the initial state, held c
     python benchmarks/bench_gradient.py --quick          # 32^2, 20 and 100 steps
     python benchmarks/bench_gradient.py                  # 64^2 and 128^2, 100/1000/10000
     python benchmarks/bench_gradient.py --sizes 64 --steps 100 1000 --time-steps 100
+    python benchmarks/bench_gradient.py --sizes 128 --steps 10000 --time-steps 0 \
+        --strategies sqrt nested3 nested4 nested6                 # memory only
 
 Targets (issue 13): gradient time <= 10x forward, memory <= 4x forward at 10000 steps, 128^2.
 """
@@ -35,7 +41,29 @@ import refmap  # noqa: F401
 from refmap import differentiable as rd
 from refmap.scenarios import get_case
 
-STRATEGIES = ("sqrt", "step", None)
+STRATEGIES = ("sqrt", "nested3", "nested4", "step", "none")
+
+
+def _strategy(name):
+    """``(checkpoint, levels)`` of a strategy name: sqrt, step, none, nestedK."""
+    if name in (None, "none"):
+        return None, 3
+    if name in ("sqrt", "step"):
+        return name, 3
+    if name.startswith("nested") and name[6:].isdigit() and int(name[6:]) >= 1:
+        return "nested", int(name[6:])
+    raise ValueError(f"unknown strategy {name!r}; use sqrt, step, none or nestedK (K >= 1)")
+
+
+def _states(name, steps):
+    """The number of states the backward pass of strategy ``name`` keeps by construction."""
+    ck, levels = _strategy(name)
+    if ck == "sqrt":
+        chunk, n_full, rem = rd._chunks(steps, "sqrt")
+        return n_full + chunk  # the outer carries, then one chunk's inner carries
+    if ck == "nested":
+        return sum(rd.nested_chunks(steps, levels))
+    return steps if ck == "step" else 0
 
 
 def _bytes(compiled):
@@ -76,25 +104,30 @@ def bench(n, steps, time_steps, reps, strategies):
     run = steps <= time_steps
     t_fwd = _time(fwd, args, reps) if run else math.nan
     rows = []
-    for ck in strategies:
-        def f(params, v, ck=ck):
+    state_mib = sum(a.size * a.dtype.itemsize for a in jax.tree_util.tree_leaves(state)) / 2**20
+    for name in strategies:
+        ck, levels = _strategy(name)
+
+        def f(params, v, ck=ck, levels=levels):
             return rd.rollout(model, state.replace(v=v), params, steps, dt, loss=loss,
-                              checkpoint=ck).loss
+                              checkpoint=ck, levels=levels).loss
 
         t0 = time.perf_counter()
         grad = jax.jit(jax.grad(f, argnums=(0, 1))).lower(*args).compile()
         c_grad = time.perf_counter() - t0
         temp, total = _bytes(grad)
         t_grad = _time(grad, args, reps) if run else math.nan
-        rows.append(dict(n=n, steps=steps, checkpoint=str(ck), fwd_s=t_fwd, grad_s=t_grad,
+        rows.append(dict(n=n, steps=steps, checkpoint=str(name), fwd_s=t_fwd, grad_s=t_grad,
+                         states=_states(name, steps), state_mib=state_mib,
                          time_ratio=t_grad / t_fwd, fwd_mib=fwd_total / 2**20,
                          grad_mib=total / 2**20, mem_ratio=total / fwd_total,
                          fwd_temp_mib=fwd_temp / 2**20, grad_temp_mib=temp / 2**20,
                          compile_fwd_s=c_fwd, compile_grad_s=c_grad))
         r = rows[-1]
-        print(f"{n:>5} {steps:>6} {r['checkpoint']:>6} {r['fwd_s']:>9.3f} {r['grad_s']:>9.3f} "
+        print(f"{n:>5} {steps:>6} {r['checkpoint']:>8} {r['fwd_s']:>9.3f} {r['grad_s']:>9.3f} "
               f"{r['time_ratio']:>6.2f} {r['fwd_mib']:>9.2f} {r['grad_mib']:>10.2f} "
-              f"{r['mem_ratio']:>7.2f} {c_grad:>8.1f}", flush=True)
+              f"{r['mem_ratio']:>7.2f} {r['states']:>7} {state_mib * r['states']:>9.2f} "
+              f"{c_grad:>8.1f}", flush=True)
     return rows
 
 
@@ -107,20 +140,23 @@ def main(argv=None):
                     help="time runs of at most this many steps (default 100; quick: all)")
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--strategies", nargs="+", default=None,
-                    help="checkpoint strategies among sqrt step none (default all)")
+                    help="checkpoint strategies among sqrt nestedK step none "
+                         "(default sqrt nested3 nested4 step none)")
     a = ap.parse_args(argv)
     sizes = a.sizes or ([32] if a.quick else [64, 128])
     steps = a.steps or ([20, 100] if a.quick else [100, 1000, 10000])
     time_steps = a.time_steps if a.time_steps is not None else (max(steps) if a.quick else 100)
-    strategies = STRATEGIES if a.strategies is None else tuple(
-        None if s == "none" else s for s in a.strategies)
+    strategies = STRATEGIES if a.strategies is None else tuple(a.strategies)
     for s in strategies:
-        if s not in STRATEGIES:
-            ap.error(f"unknown strategy {s!r}; use sqrt, step or none")
+        try:
+            _strategy(s)
+        except ValueError as e:
+            ap.error(str(e))
     print(f"backend {jax.default_backend()}, circle scenario, CPU time best of {a.reps}; "
           f"memory from memory_analysis() (temporaries + arguments + outputs)")
-    print(f"{'n':>5} {'steps':>6} {'ckpt':>6} {'fwd [s]':>9} {'grad [s]':>9} {'ratio':>6} "
-          f"{'fwd MiB':>9} {'grad MiB':>10} {'mem x':>7} {'compile':>8}")
+    print(f"{'n':>5} {'steps':>6} {'ckpt':>8} {'fwd [s]':>9} {'grad [s]':>9} {'ratio':>6} "
+          f"{'fwd MiB':>9} {'grad MiB':>10} {'mem x':>7} {'states':>7} {'st. MiB':>9} "
+          f"{'compile':>8}")
     rows = []
     for n in sizes:
         for k in steps:

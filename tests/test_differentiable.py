@@ -215,6 +215,70 @@ def test_rematerialisation_strategies_agree(fluid_model):
             assert np.all(np.isfinite(np.asarray(a)))
 
 
+@pytest.mark.parametrize("n, levels", [(11, 3), (7, 2), (9, 2), (13, 4), (1, 3), (5, 1)])
+def test_nested_checkpoints_agree_with_sqrt(fluid_model, n, levels):
+    """checkpoint="nested": levels nested scans, the steps past n computed and discarded
+    (11 steps in 3 levels: 2 x 2 x 3 = 12, one discarded; 7 in 2: 2 x 4, one; 9 in 2:
+    3 x 3, none; 13 in 4: 2^4, three; 1 in 3: none, the length-1 scans dropped).  Same
+    final state as Model.run_steps, same gradient as "sqrt" (1e-12), and the same
+    observations, in order."""
+    model, state, params = fluid_model
+    dt = 0.01
+    ref = jax.jit(lambda s: model.run_steps(s, params, n, dt=dt))(state)
+    cs = rd.nested_chunks(n, levels)
+    assert len(cs) == levels and math.prod(cs) >= n
+
+    def f(eta, v, ck):
+        p = rd.replace_fluid(params, eta=eta)
+        out = rd.rollout(
+            model,
+            state.replace(v=v),
+            p,
+            n,
+            dt,
+            checkpoint=ck,
+            levels=levels,
+            observe=lambda s: s.v[0, 5, 5],
+            loss=lambda s, o: jnp.sum(s.v**2) + jnp.sum(s.rho_f**2) + jnp.sum(o),
+        )
+        return out.loss, (out.state, out.observations)
+
+    res = {}
+    for ck in ("sqrt", "nested"):
+        (_, aux), g = jax.jit(
+            jax.value_and_grad(f, argnums=(0, 1), has_aux=True), static_argnums=2
+        )(0.12, state.v, ck)
+        res[ck] = (aux, g)
+    (final, obs), g = res["nested"]
+    for k in ("v", "rho_f", "t"):
+        np.testing.assert_allclose(
+            np.asarray(getattr(final, k)), np.asarray(getattr(ref, k)), rtol=0, atol=1e-14
+        )
+    assert obs.shape == (n,)
+    np.testing.assert_array_equal(np.asarray(obs), np.asarray(res["sqrt"][0][1]))
+    for a, b in zip(res["sqrt"][1], g, strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-15)
+        assert np.all(np.isfinite(np.asarray(b)))
+
+
+def test_nested_chunks():
+    assert rd.nested_chunks(10000, 4) == (10, 10, 10, 10)
+    assert rd.nested_chunks(10000, 3) == (19, 22, 24)  # 32 steps discarded, 65 states
+    assert rd.nested_chunks(10000, 2) == (100, 100)
+    assert rd.nested_chunks(1, 3) == (1, 1, 1)
+    assert rd.nested_chunks(7, 1) == (7,)
+    for n in range(1, 200):
+        for k in (2, 3, 5):
+            cs = rd.nested_chunks(n, k)
+            c = min(x for x in range(1, n + 1) if x**k >= n)  # ceil(n^(1/k))
+            waste = math.prod(cs) - n
+            assert len(cs) == k and waste >= 0 and sum(cs) <= k * (c + 2), (n, k, cs)
+            # at most 5 % of the steps discarded, else no more states than c^k would keep
+            assert waste <= 0.05 * n or sum(cs) <= k * c, (n, k, cs)
+    with pytest.raises(ValueError, match="levels must be an integer >= 1, got 0"):
+        rd.nested_chunks(10, 0)
+
+
 def test_observations_are_stacked_per_step(fluid_model):
     model, state, params = fluid_model
 
@@ -277,6 +341,8 @@ def test_rollout_rejects_bad_input(fluid_model):
         rd.rollout(model, state, params, 2.5, 0.01)
     with pytest.raises(ValueError, match="checkpoint must be one of"):
         rd.rollout(model, state, params, 2, 0.01, checkpoint="sqrtn")
+    with pytest.raises(ValueError, match="levels must be an integer >= 1, got 0"):
+        rd.rollout(model, state, params, 2, 0.01, checkpoint="nested", levels=0)
     with pytest.raises(ValueError, match="dt must be a finite number > 0, got -0.01"):
         rd.rollout(model, state, params, 2, -0.01)
     with pytest.raises(ValueError, match="loss must be callable"):
