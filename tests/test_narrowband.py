@@ -100,3 +100,29 @@ def test_model_band_sweeps_equal_grid_sweeps(name):
 def test_bad_band_numerics_refused(kw, msg):
     with pytest.raises(ValueError, match=msg):
         Numerics(**kw)
+
+
+def test_auto_tiles_only_a_band_that_covers_little_of_the_grid():
+    """band_sweeps = "auto" (the default) lists tiles only when the capacity is at most
+    BAND_TILE_FRACTION of the grid's tiles: a small disc on a large grid is tiled, the
+    rotor at 64^2 (its band covers most of the 16 tiles) is swept densely, "band" forces
+    tiles and "grid" forbids them."""
+    from refmap.geometry import Disc
+    from refmap.materials import NeoHookean
+    from refmap.model import BAND_TILE_FRACTION, Model, Solid
+
+    assert Numerics().band_sweeps == "auto"
+    grid = Grid(256, 256)
+    disc = Solid(Disc((0.0, 0.0), 0.1), NeoHookean(G=1.0, kappa=1.0))
+    caps = {m: Model(grid, (disc,), numerics=Numerics(band_sweeps=m)).band_capacity
+            for m in ("auto", "band", "grid")}
+    assert caps["grid"] is None
+    assert caps["auto"] == caps["band"] is not None
+    assert caps["auto"] <= BAND_TILE_FRACTION * 16 * 16
+    rotor = {}
+    for m in ("auto", "band"):
+        case = get_case("rotor", 64)
+        model, _ = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps=m)).build()
+        rotor[m] = model.band_capacity
+    assert rotor["auto"] is None
+    assert rotor["band"] > BAND_TILE_FRACTION * 4 * 4

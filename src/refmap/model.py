@@ -50,6 +50,11 @@ from refmap.projection import Projection
 from refmap.state import FluidParams, Numerics, Params, State
 from refmap.viscosity import ImplicitViscosity
 
+# band_sweeps = "auto": sweep the band on tiles only when its listed tiles are at most this
+# fraction of the grid's; a tile sweep costs 1.8-2.5 times a full-grid sweep per node
+# (rotor, 128^2-512^2, docs/benchmarks.md), so the break-even lies at 0.40-0.57
+BAND_TILE_FRACTION = 0.35
+
 LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max", "fixed")
 
 
@@ -195,8 +200,10 @@ class Model:
 
         ``band_capacity`` times the largest number of tiles a solid's band covers at t = 0
         (from ``phi0`` of the initial maps), plus 8, but not more than the grid's tiles;
-        None (full-grid sweeps) with ``band_sweeps = "grid"``, without solids, or when the
-        grid cannot be tiled (:func:`refmap.narrowband.tile_shape`).  A band that outgrows
+        None (full-grid sweeps) with ``band_sweeps = "grid"``, without solids, when the
+        grid cannot be tiled (:func:`refmap.narrowband.tile_shape`), or with
+        ``band_sweeps = "auto"`` when that is more than ``BAND_TILE_FRACTION`` of the
+        grid's tiles (the full-grid sweeps are then the cheaper).  A band that outgrows
         it makes the step fall back on the full-grid sweeps (same result, full cost)."""
         n = self.numerics
         self.band_tile = narrowband.tile_shape(self.grid.shape(), self.bc.periodic)
@@ -208,7 +215,10 @@ class Model:
             counts = np.asarray(extrapolation.band_tiles(
                 phi - shift, n.band * self.h - shift, self.band_tile, self.bc.periodic))
         ntx, nty = narrowband.n_tiles(self.grid.shape(), self.band_tile)
-        return min(int(math.ceil(n.band_capacity * counts.max())) + 8, ntx * nty)
+        capacity = min(int(math.ceil(n.band_capacity * counts.max())) + 8, ntx * nty)
+        if n.band_sweeps == "auto" and capacity > BAND_TILE_FRACTION * ntx * nty:
+            return None
+        return capacity
 
     # ------------------------------------------------------------------ helpers
     @property

@@ -157,12 +157,15 @@ class Numerics:
     stress does exactly the work that changes its stored energy (docs/method.md).
 
     ``band_sweeps`` says where the extrapolation and smoothing sweeps of each solid's map
-    run: ``"band"`` (default) on a list of that solid's band nodes only
-    (:mod:`refmap.narrowband`, gathered once per step; the result is bitwise that of the
-    full-grid sweeps), ``"grid"`` over the whole grid.  The list holds ``band_capacity``
-    (>= 1, default 2) times the solid's band nodes at t = 0, plus two grid rows; a band that
-    outgrows it (a body stretched to more than that perimeter) makes the step fall back on
-    the full-grid sweeps: same result, full cost (docs/benchmarks.md).
+    run: ``"band"`` on the grid tiles that solid's band covers (:mod:`refmap.narrowband`,
+    gathered once per step; equal to the full-grid sweeps to round-off), ``"grid"`` over
+    the whole grid, ``"auto"`` (default) on tiles when the listed tiles are at most
+    ``BAND_TILE_FRACTION`` (0.35) of the grid's tiles and over the whole grid otherwise (a
+    tile sweep costs 1.8-2.5 times a full-grid sweep per node, measured in
+    docs/benchmarks.md, so a band that covers more of the grid is cheaper swept densely).
+    The list holds ``band_capacity`` (>= 1, default 2) times the tiles the solid's band
+    covers at t = 0, plus 8; a band that outgrows it (a body stretched to more than that
+    perimeter) makes the step fall back on the full-grid sweeps: same result, full cost.
 
     ``compression`` picks the velocity divergence in the fluid-density update
     ``d rho_f / dt = -v . grad rho_f - w_f rho_f div v``:
@@ -221,7 +224,7 @@ class Numerics:
     phi_max: float = 12.0
     compression: str = "centred"
     band_force: str = "local"
-    band_sweeps: str = "band"
+    band_sweeps: str = "auto"
     band_capacity: float = 2.0
     viscosity: str = "explicit"
     viscosity_rtol: float = 1e-6
@@ -242,7 +245,6 @@ class Numerics:
             "fluid_model": ("compressible", "incompressible"),
             "pressure_preconditioner": ("fast", "jacobi"),
             "band_force": ("local", "solid"),
-            "band_sweeps": ("band", "grid"),
         }
         for name, (a, b) in choices.items():
             value = getattr(self, name)
@@ -252,6 +254,10 @@ class Numerics:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 < value < 1):
                 raise ValueError(f"numerics {name} must be in (0, 1), got {value!r}")
+        if self.band_sweeps not in ("auto", "band", "grid"):
+            raise ValueError(
+                f"numerics band_sweeps must be 'auto', 'band' or 'grid', got {self.band_sweeps!r}"
+            )
         if not (isinstance(self.band_capacity, (int, float)) and self.band_capacity >= 1):
             raise ValueError(f"numerics band_capacity must be a number >= 1, got {self.band_capacity!r}")
         pos = ["blur_width", "band", "stress_band", "cfl", "phi_max"]
