@@ -31,7 +31,16 @@ Neumann, the null space is the constants, and the solve needs the boundary fluxe
 balance (checked when the model is built).  Supported: periodic pairs, ``wall`` (no-slip,
 moving tangentially), ``slip``, ``velocity`` (inflow or prescribed outflow, any profile;
 segments whose normal velocity is not zero must share one ramp and omega so the balance
-holds at every t).  Refused (ValueError naming the edge): ``outflow`` segments.
+holds at every t, unless an ``outflow`` segment takes up the difference), and
+``outflow``: on the edge's row of nodes the pressure is zero (Dirichlet) and that row's
+divergence is not constrained -- the normal face velocity beyond it is whatever closes the
+row's continuity equation, so the fluid leaves at the rate the flow brings it.  Formally
+the unknowns and equations of those nodes are removed (``keep = 0``: ``B`` is ``keep *
+D``, ``G = -B^T`` reads ``keep * p``, and the operator is the identity there), so ``A``
+stays symmetric, and with any outflow node it is definite: no constant null space, no
+balance needed.  The velocity on a low outflow row (left, bottom) is then free and not
+corrected (its continuity row is gone); the next row's correction reads the zero
+pressure.  ``divergence`` reports zero on the outflow rows.
 
 Solver.  ``A + s P0`` (P0 the projector onto the constants, s a fixed scale) is SPD with
 the same solution for the compatible (mean-free) right-hand side; it is solved by
@@ -61,7 +70,8 @@ def _is_number(x) -> bool:
 
 def check_boundary(boundary, grid) -> None:
     """Raise ValueError for edge conditions the projection does not support, and when the
-    prescribed normal velocities do not balance (no divergence-free field would meet them)."""
+    prescribed normal velocities do not balance and no ``outflow`` segment takes up the
+    difference (no divergence-free field would meet them)."""
     groups: dict = {}
     scale = 0.0
     for name in ("left", "right", "bottom", "top"):
@@ -71,12 +81,7 @@ def check_boundary(boundary, grid) -> None:
         axis = _AXIS[name]
         for seg in edge:
             if seg.kind == "outflow":
-                raise ValueError(
-                    f"fluid_model 'incompressible' does not support boundary kind 'outflow' "
-                    f"(edge {name!r}, segment [{seg.start:g}, {seg.end:g})); use a 'velocity' "
-                    "segment with the outflow's velocity (the fluxes must balance), 'wall', "
-                    "'slip' or 'periodic', or fluid_model = 'compressible'"
-                )
+                return  # the outflow takes up any net flux
             if seg.kind == "slip":
                 continue
             un = seg.velocity[axis]
@@ -108,7 +113,9 @@ def _face_values(name, edge, grid, t, waveform=True):
     """The normal velocity on the edge's faces (one value per node along it) at time t."""
     axis = _AXIS[name]
     xn, yn = grid.axes("node")
-    s_along = (yn - grid.ay) / (grid.by - grid.ay) if axis == 0 else (xn - grid.ax) / (grid.bx - grid.ax)
+    s_along = (
+        (yn - grid.ay) / (grid.by - grid.ay) if axis == 0 else (xn - grid.ax) / (grid.bx - grid.ax)
+    )
     out = jnp.zeros(s_along.shape)
     for seg in edge:
         if seg.kind not in ("wall", "velocity"):
@@ -125,12 +132,33 @@ def _face_values(name, edge, grid, t, waveform=True):
     return np.asarray(out) if not waveform else out
 
 
+def _outflow_nodes(name, edge, grid):
+    """(n,) bool: the nodes along an edge that lie on an ``outflow`` segment."""
+    axis = _AXIS[name]
+    xn, yn = grid.axes("node")
+    s_along = np.asarray(
+        (yn - grid.ay) / (grid.by - grid.ay) if axis == 0 else (xn - grid.ax) / (grid.bx - grid.ax)
+    )
+    out = np.zeros(s_along.shape, dtype=bool)
+    for seg in edge:
+        if seg.kind == "outflow":
+            m = (s_along >= seg.start) & (s_along < seg.end)
+            if seg.end >= 1.0:
+                m |= s_along >= 1.0
+            out |= m
+    return out
+
+
 class Projection:
     """The pressure projection for one :class:`refmap.model.Model` (built once)."""
 
-    def __init__(self, model, rtol: float = 1e-10, maxiter: int = 500, preconditioner: str = "fast"):
+    def __init__(
+        self, model, rtol: float = 1e-10, maxiter: int = 500, preconditioner: str = "fast"
+    ):
         if preconditioner not in ("fast", "jacobi"):
-            raise ValueError(f"pressure preconditioner must be 'fast' or 'jacobi', got {preconditioner!r}")
+            raise ValueError(
+                f"pressure preconditioner must be 'fast' or 'jacobi', got {preconditioner!r}"
+            )
         g = model.grid
         check_boundary(model.boundary, g)
         self.grid = g
@@ -139,14 +167,42 @@ class Projection:
         self.rtol = float(rtol)
         self.maxiter = int(maxiter)
         self.preconditioner_kind = preconditioner
+        out = {
+            name: _outflow_nodes(name, getattr(model.boundary, name), g)
+            for name in _AXIS
+            if getattr(model.boundary, name) != "periodic"
+        }
+        self.outflow = out
         mask = np.ones((2, g.nx, g.ny))
+        keep = np.ones((g.nx, g.ny))
         if not self.periodic[0]:
-            mask[0, 0, :] = 0.0  # the left face's normal velocity: prescribed
+            # the left face's normal velocity: prescribed, except on an outflow (free)
+            mask[0, 0, :] = out["left"]
+            keep[0, out["left"]] = 0.0
+            keep[-1, out["right"]] = 0.0
         if not self.periodic[1]:
-            mask[1, :, 0] = 0.0
+            mask[1, :, 0] = out["bottom"]
+            keep[out["bottom"], 0] = 0.0
+            keep[out["top"], -1] = 0.0
         self.mask = mask
-        kinds = tuple("periodic" if p else ("even", "even") for p in self.periodic)
+        self.has_outflow = bool(np.any(keep == 0.0))
+        self.keep = keep
+
+        # the fast preconditioner: Neumann (even) at an edge, Dirichlet (odd: zero half a
+        # cell beyond the row where the operator has it on the row) where the whole edge is
+        # an outflow
+        def kind(name):
+            o = out.get(name)
+            return "odd" if o is not None and o.all() else "even"
+
+        kinds = tuple(
+            "periodic" if p else (kind(lo), kind(hi))
+            for p, (lo, hi) in zip(
+                self.periodic, (("left", "right"), ("bottom", "top")), strict=True
+            )
+        )
         self.fast = SeparableSolver(g.nx, g.ny, g.dx, g.dy, kinds)
+        self.fast_definite = any(k != "periodic" and "odd" in k for k in kinds)
 
     # ------------------------------------------------------------------ operators
     def _edge(self, name, t):
@@ -164,24 +220,27 @@ class Projection:
         """``v`` with the low edges' normal components set to the edges' normal velocity."""
         out = v
         if not self.periodic[0]:
-            out = out.at[0, 0, :].set(self._edge("left", t))
+            face = jnp.where(self.outflow["left"], v[0, 0, :], self._edge("left", t))
+            out = out.at[0, 0, :].set(face)
         if not self.periodic[1]:
-            out = out.at[1, :, 0].set(self._edge("bottom", t))
+            face = jnp.where(self.outflow["bottom"], v[1, :, 0], self._edge("bottom", t))
+            out = out.at[1, :, 0].set(face)
         return out
 
     def divergence(self, v, t):
-        """The discrete divergence D v (nx, ny) the projection zeroes, edge data at t."""
+        """The discrete divergence D v (nx, ny) the projection zeroes, edge data at t (zero
+        on outflow rows, whose continuity equation the outgoing face velocity closes)."""
         v = self.prescribe(v, t)
         hi_u = None if self.periodic[0] else self._edge("right", t)
         hi_v = None if self.periodic[1] else self._edge("top", t)
-        return self._div(v, hi_u, hi_v)
+        return self._div(v, hi_u, hi_v) * self.keep
 
     def B(self, w):
         """The linear part of D on the free velocity components (zero edge data)."""
         g = self.grid
         zu = None if self.periodic[0] else jnp.zeros(g.ny)
         zv = None if self.periodic[1] else jnp.zeros(g.nx)
-        return self._div(w * self.mask, zu, zv)
+        return self._div(w * self.mask, zu, zv) * self.keep
 
     def BT(self, p):
         """B^T p (2, nx, ny); ``-B^T`` is the pressure gradient G."""
@@ -199,6 +258,14 @@ class Projection:
         s = jax.lax.stop_gradient(jnp.mean(inv)) * (2.0 / self.grid.dx**2 + 2.0 / self.grid.dy**2)
         if weight is not None:
             inv = inv * weight
+
+        if self.has_outflow:  # definite: the outflow rows' identity instead of s P0
+            drop = 1.0 - self.keep
+
+            def A(p):
+                return self.B(inv[None] * self.BT(p)) + drop * p
+
+            return A, s
 
         def A(p):
             return self.B(inv[None] * self.BT(p)) + s * jnp.mean(p)
@@ -221,7 +288,12 @@ class Projection:
                 mean = jnp.mean(r)
                 return self.fast.solve_semidefinite(r - mean, c, c) + mean / s0
 
-            return P
+            if not self.has_outflow:
+                return P
+            keep, drop = self.keep, 1.0 - self.keep
+            if self.fast_definite:
+                return lambda r: keep * self.fast.solve(keep * r, 0.0, c, c) + drop * r
+            return lambda r: keep * P(keep * r) + drop * r
         # the diagonal of B rho^-1 B^T: each node sees the free u at i and i + 1, v at j, j + 1
         wu = inv * self.mask[0]
         wv = inv * self.mask[1]
@@ -233,7 +305,10 @@ class Projection:
             vy = wv + jnp.roll(wv, -1, axis=1)
         else:
             vy = wv + jnp.concatenate([wv[:, 1:], jnp.zeros((g.nx, 1))], axis=1)
-        diag = ux / g.dx**2 + vy / g.dy**2 + sg(s) / (g.nx * g.ny)
+        if self.has_outflow:
+            diag = (ux / g.dx**2 + vy / g.dy**2) * self.keep + (1.0 - self.keep)
+        else:
+            diag = ux / g.dx**2 + vy / g.dy**2 + sg(s) / (g.nx * g.ny)
         return lambda r: r / diag
 
     # ------------------------------------------------------------------ the projection
@@ -246,7 +321,10 @@ class Projection:
         ``return_info`` also ``(p, info)`` (then not differentiable: plain CG)."""
         v_b = self.prescribe(v_star, t_new)
         b = self.divergence(v_b, t_new)
-        rhs = -(b - jnp.mean(b)) / dt  # compatible: the fluxes balance (checked), round-off
+        if self.has_outflow:
+            rhs = -b / dt  # zero on the outflow rows (b is)
+        else:
+            rhs = -(b - jnp.mean(b)) / dt  # compatible: the fluxes balance (checked), round-off
         A, s = self.operator(rho, weight)
         P = self.preconditioner(rho, s, weight)
         atol = 1e-14 * jax.lax.stop_gradient(jnp.sqrt(jnp.sum(v_b**2)) / (dt * self.grid.h))
