@@ -116,10 +116,10 @@ def cost(name, n, t_end=0.5):
     return out
 
 
-def cavity(n, t_end, cfl=0.5):
-    """validation/lid_cavity.py's soft disc (LogNeoHookean G = 0.1, kappa = 10, mu = 0.01 as
-    extra viscosity, eta = 0) in an incompressible fluid; dt = cfl min(h^2 / (4 mu),
-    h / c_solid) (no sound, no bulk viscosity)."""
+def build_cavity(n, cfl=0.5, numerics=None):
+    """(model, params, dt): validation/lid_cavity.py's soft disc (LogNeoHookean G = 0.1,
+    kappa = 10, mu = 0.01 as extra viscosity, eta = 0) in an incompressible fluid;
+    dt = cfl min(h^2 / (4 mu), h / c_solid) (no sound, no bulk viscosity)."""
     h = 1.0 / n
     c_solid = math.sqrt(10.0 + 2.0 * lid_cavity.G)
     dt = cfl * min(h * h / (4.0 * lid_cavity.MU), h / c_solid)
@@ -128,8 +128,15 @@ def cavity(n, t_end, cfl=0.5):
               (Solid(shape=Disc(center=lid_cavity.CENTER, radius=lid_cavity.RADIUS), law=law,
                      name="disc"),),
               Boundary(top=(Segment("velocity", velocity=(1.0, 0.0)),)),
-              dataclasses.replace(INC, dt_fixed=dt))
+              dataclasses.replace(numerics or INC, dt_fixed=dt))
     p = Params(fluid=FluidParams(rho0=1.0, eta=0.0, extra_viscosity=lid_cavity.MU), laws=(law,))
+    return m, p, dt
+
+
+def cavity(n, t_end, cfl=0.5, numerics=None):
+    """The incompressible cavity (:func:`build_cavity`) to t_end, diagnostics every 0.05,
+    compared with the reference path (``lid_cavity.compare``)."""
+    m, p, dt = build_cavity(n, cfl, numerics)
     adv = jax.jit(m.advance)
     diag = jax.jit(m.diagnostics)
     s = m.initial_state(p)

@@ -180,8 +180,8 @@ class Case:
             raise CaseError(f"case {self.name!r}: {key}: {e.msg}") from None
 
     def velocity_scales(self) -> dict[str, float]:
-        """The speeds this case can set up, by name: the fluid's sound speed, the fastest
-        solid wave, the fastest boundary velocity, the fastest initial solid velocity and
+        """The speeds this case can set up, by name: the fluid's sound speed (not with an
+        incompressible fluid, unless nothing else sets a speed), the fastest solid wave, the fastest boundary velocity, the fastest initial solid velocity and
         the free-fall speed sqrt(2 |g| L) over the domain.  The run's growth checks
         (:mod:`refmap.simulation`) and the dt_fixed warning measure against them."""
         fl = self.fluid
@@ -220,6 +220,8 @@ class Case:
         if gmag > 0:
             g = self.grid
             out["free fall"] = math.sqrt(2.0 * gmag * max(g.bx - g.ax, g.by - g.ay))
+        if self.numerics.fluid_model == "incompressible" and len(out) > 1:
+            del out["sound speed"]  # lambda_f is unused: an incompressible fluid has no sound
         return out
 
     def hydrostatic_mach(self):

@@ -312,15 +312,20 @@ class Projection:
         return lambda r: r / diag
 
     # ------------------------------------------------------------------ the projection
-    def project(self, v_star, rho, t_new, dt, weight=None, return_info=False):
+    def project(self, v_star, rho, t_new, dt, weight=None, return_info=False, source=None):
         """The divergence-free ``v = v* - dt W rho^-1 G p`` (edge data at t_new).
 
         ``weight`` (nx, ny), default 1: how much of the correction each node takes; the
         anchors' nodes (:meth:`refmap.model.Model.step`) take ``1 - w_anchor``, so an
-        anchor's velocity, applied to v* before, is kept where it holds fully.  With
-        ``return_info`` also ``(p, info)`` (then not differentiable: plain CG)."""
+        anchor's velocity, applied to v* before, is kept where it holds fully.  ``source``
+        (nx, ny), default 0: the divergence to impose instead, ``D v = source`` (the solids'
+        volume correction, :meth:`refmap.model.Model.volume_source`); without an outflow
+        edge it must sum to zero (its mean is removed).  With ``return_info`` also
+        ``(p, info)`` (then not differentiable: plain CG)."""
         v_b = self.prescribe(v_star, t_new)
         b = self.divergence(v_b, t_new)
+        if source is not None:
+            b = b - source * self.keep
         if self.has_outflow:
             rhs = -b / dt  # zero on the outflow rows (b is)
         else:

@@ -467,7 +467,10 @@ class Simulation:
         drive_u = max(scales.get(k, 0.0) for k in ("boundary speed", "initial solid speed", "initial speed"))
         gmag = float(np.hypot(*case.gravity))
         drive = 0.5 * rho_max * drive_u**2 * area + rho_max * gmag * max(g.bx - g.ax, g.by - g.ay) * area
-        floor = 0.5 * float(case.fluid.rho0) * (GROWTH_LIMITS["energy_floor_mach"] * scales["sound speed"]) ** 2 * area
+        # the floor's speed: the fluid's sound speed, or (incompressible: no sound) the
+        # fastest speed the case sets up
+        c_floor = scales.get("sound speed", max(scales.values()))
+        floor = 0.5 * float(case.fluid.rho0) * (GROWTH_LIMITS["energy_floor_mach"] * c_floor) ** 2 * area
         e0 = float(row.get("kinetic_energy", 0.0)) + float(row.get("elastic_energy", 0.0))
         self._energy0 = e0
         self._energy_limit = GROWTH_LIMITS["energy"] * max(e0 + drive, floor)
