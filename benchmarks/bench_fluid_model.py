@@ -73,10 +73,15 @@ def main(argv=None):
     a = ap.parse_args(argv)
     sizes = [int(x) for x in a.sizes.split(",")]
     ref = lid_cavity.REF_EXTENTS
-    print(f"lid-driven cavity, soft disc, t = 0 -> {a.t_end}; jax {jax.__version__} "
-          f"on {jax.devices()[0].platform}", flush=True)
-    head = (f"{'n':>5} {'fluid':>15} {'dt':>9} {'steps':>7} {'wall s':>8} {'ms/step':>8} "
-            f"{'RMS loop':>9} {'dx_max':>7} {'dx_min':>7} {'dy_max':>7} {'dy_min':>7} {'area loop':>9}")
+    print(
+        f"lid-driven cavity, soft disc, t = 0 -> {a.t_end}; jax {jax.__version__} "
+        f"on {jax.devices()[0].platform}",
+        flush=True,
+    )
+    head = (
+        f"{'n':>5} {'fluid':>15} {'dt':>9} {'steps':>7} {'wall s':>8} {'ms/step':>8} "
+        f"{'RMS loop':>9} {'dx_max':>7} {'dx_min':>7} {'dy_max':>7} {'dy_min':>7} {'area loop':>9}"
+    )
     print(head, flush=True)
     for n in sizes:
         res = {}
@@ -84,11 +89,13 @@ def main(argv=None):
             r = run(n, model, a.t_end)
             res[model] = r
             err = {k: r.get(k, float("nan")) - v for k, v in ref.items()}
-            print(f"{n:>5} {model:>15} {r['dt']:>9.3g} {r['steps']:>7} {r['wall']:>8.1f} "
-                  f"{1e3 * r['wall'] / r['steps']:>8.2f} {r.get('rms_first_loop', float('nan')):>9.4f} "
-                  f"{err['x_max']:>+7.3f} {err['x_min']:>+7.3f} {err['y_max']:>+7.3f} "
-                  f"{err['y_min']:>+7.3f} {100 * r.get('area_change_loop', float('nan')):>+8.2f}%",
-                  flush=True)
+            print(
+                f"{n:>5} {model:>15} {r['dt']:>9.3g} {r['steps']:>7} {r['wall']:>8.1f} "
+                f"{1e3 * r['wall'] / r['steps']:>8.2f} {r.get('rms_first_loop', float('nan')):>9.4f} "
+                f"{err['x_max']:>+7.3f} {err['x_min']:>+7.3f} {err['y_max']:>+7.3f} "
+                f"{err['y_min']:>+7.3f} {100 * r.get('area_change_loop', float('nan')):>+8.2f}%",
+                flush=True,
+            )
         speed = res["compressible"]["wall"] / res["incompressible"]["wall"]
         print(f"{n:>5} time to solution, compressible / incompressible: {speed:.1f}x", flush=True)
 
