@@ -613,10 +613,16 @@ class Model:
         ws = derived["ws_c"][:, 1:, 1:]
         logJ = jnp.where(inside, jnp.log(derived["J"][:, 1:, 1:]), 0.0)
         src = -(f / dt) * jnp.sum(ws * logJ, axis=0)
-        if self.projection.has_outflow:
-            return src
         keep = self.projection.keep
         wf = derived["wf_c"][1:, 1:] * keep
+        if self._anchor_free is not None:
+            # nodes an anchor holds take no source: their rows of A can be null (all four
+            # velocities held), and even a round-off source there made CG diverge (rotor at
+            # 96^2, third step); the anchors hold J = 1 there anyway
+            src = src * self._anchor_free
+            wf = wf * self._anchor_free
+        if self.projection.has_outflow:
+            return src
         total = jnp.sum(src * keep)
         return src - total * wf / jnp.maximum(jnp.sum(wf), 1e-300)
 
