@@ -4,7 +4,8 @@ The numerical core works on bare arrays for speed, but the two stencils that cro
 the point sets are exposed here on :class:`Field` values, which check the location of their
 input and stamp the location of their output (the jax-cfd ``GridArray.offset`` idea).  A
 node field has trailing shape ``(nx, ny)``, a corner field ``(nx + 1, ny + 1)``; leading
-axes (components, solids) are free.
+axes (components, solids) are free.  On a :class:`refmap.grid.Grid3D` the same functions
+work with trailing shapes ``(nx, ny, nz)`` / ``(nx + 1, ny + 1, nz + 1)``.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from refmap.grid import Grid, Location
+from refmap.grid import Grid, Grid3D, Location
 from refmap.operators import div_node, grad_corner, node_average
 
 
@@ -22,14 +23,15 @@ from refmap.operators import div_node, grad_corner, node_average
 class Field:
     data: jax.Array
     loc: Location
-    grid: Grid
+    grid: Grid | Grid3D
 
     def __post_init__(self):
         want = self.grid.shape(self.loc)
-        shape = tuple(jnp.shape(self.data)[-2:])
+        shape = tuple(jnp.shape(self.data)[-len(want):])
         if shape != want:
+            cells = "x".join(str(n) for n in self.grid.shape("node"))
             raise ValueError(
-                f"a {self.loc} field on a {self.grid.nx}x{self.grid.ny} grid must end in shape {want}, got {shape}"
+                f"a {self.loc} field on a {cells} grid must end in shape {want}, got {shape}"
             )
 
 
@@ -53,32 +55,39 @@ def _require(f: Field, loc: Location, what: str):
         raise ValueError(f"{what} needs a {loc} field, got a {f.loc} field")
 
 
-def gradient(f: Field, padded: jax.Array) -> tuple[Field, Field]:
-    """Bottom-left-triangle gradient of a node field -> two corner fields.
+def gradient(f: Field, padded: jax.Array) -> tuple[Field, ...]:
+    """Bottom-left-triangle gradient of a node field -> one corner field per axis.
 
     ``padded`` is ``f.data`` with one ghost layer (from :mod:`refmap.boundary`)."""
     _require(f, "node", "gradient")
-    gx, gy = grad_corner(padded, f.grid.dx, f.grid.dy)
-    return Field(gx, "corner", f.grid), Field(gy, "corner", f.grid)
+    return tuple(Field(g, "corner", f.grid) for g in grad_corner(padded, *f.grid.spacing))
 
 
-def divergence(sxx: Field, sxy: Field, syy: Field) -> Field:
-    """Top-right-triangle divergence of a symmetric corner tensor -> node vector field."""
-    for s in (sxx, sxy, syy):
-        _require(s, "corner", "divergence")
-    g = sxx.grid
-    return Field(div_node(sxx.data, sxy.data, syy.data, g.dx, g.dy), "node", g)
+def divergence(*s: Field) -> Field:
+    """Top-right-triangle divergence of a symmetric corner tensor -> node vector field.
+
+    2D: ``divergence(sxx, sxy, syy)``; 3D: ``divergence(sxx, sxy, sxz, syy, syz, szz)``."""
+    for c in s:
+        _require(c, "corner", "divergence")
+    g = s[0].grid
+    d = g.ndim
+    if len(s) != d * (d + 1) // 2:
+        raise ValueError(
+            f"divergence on a {d}D grid needs the {d * (d + 1) // 2} components of a "
+            f"symmetric tensor, got {len(s)}"
+        )
+    return Field(div_node(*(c.data for c in s), *g.spacing), "node", g)
 
 
 def to_nodes(f: Field) -> Field:
-    """Average a corner field over each node's four corners."""
+    """Average a corner field over each node's 2^d corners."""
     _require(f, "corner", "to_nodes")
-    return Field(node_average(f.data), "node", f.grid)
+    return Field(node_average(f.data, ndim=f.grid.ndim), "node", f.grid)
 
 
-def locate(grid: Grid, data) -> Field:
+def locate(grid: Grid | Grid3D, data) -> Field:
     """Wrap an array, inferring its location from its trailing shape."""
-    shape = tuple(jnp.shape(data)[-2:])
+    shape = tuple(jnp.shape(data)[-grid.ndim :])
     for loc in ("node", "corner"):
         if shape == grid.shape(loc):
             return Field(data, loc, grid)

@@ -8,12 +8,18 @@
 Arrays are indexed ``[i, j]`` with i along x and j along y ("ij" indexing), so a node field
 has shape ``(nx, ny)`` and a corner field ``(nx + 1, ny + 1)``.  Vector fields put their
 components first: ``(2, nx, ny)``; solids are stacked on a leading axis before that.
+
+:class:`Grid3D` is the same in three dimensions (a box cut into nx x ny x nz cells, fields
+``(nx, ny, nz)`` and ``(3, nx, ny, nz)``).  It is a separate class so that :class:`Grid`, whose
+fields are serialised by the case and output code, stays exactly as it is.  Both expose
+``ndim`` and ``spacing`` (the tuple the dimension-generic operators take:
+``grad_corner(fp, *grid.spacing)``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -23,6 +29,8 @@ Location = Literal["node", "corner"]
 @dataclass(frozen=True)
 class Grid:
     """A rectangle [ax, bx] x [ay, by] cut into nx x ny square-ish cells (hashable, static)."""
+
+    ndim: ClassVar[int] = 2
 
     nx: int
     ny: int
@@ -54,6 +62,10 @@ class Grid:
         """The smaller spacing: the length every band width and blur width is measured in."""
         return min(self.dx, self.dy)
 
+    @property
+    def spacing(self) -> tuple[float, float]:
+        return (self.dx, self.dy)
+
     def shape(self, loc: Location = "node") -> tuple[int, int]:
         return (self.nx, self.ny) if loc == "node" else (self.nx + 1, self.ny + 1)
 
@@ -80,3 +92,82 @@ class Grid:
 
     def contains(self, x: float, y: float) -> bool:
         return self.ax <= x <= self.bx and self.ay <= y <= self.by
+
+
+@dataclass(frozen=True)
+class Grid3D:
+    """A box [ax, bx] x [ay, by] x [az, bz] cut into nx x ny x nz cells (hashable, static).
+
+    Nodes are the cell centres, shape ``(nx, ny, nz)``; corners the cell vertices, shape
+    ``(nx + 1, ny + 1, nz + 1)``; arrays are indexed ``[i, j, k]`` along (x, y, z).  The
+    3D step, state and output do not exist yet (see docs/method.md, "Three dimensions").
+    """
+
+    ndim: ClassVar[int] = 3
+
+    nx: int
+    ny: int
+    nz: int
+    ax: float = -2.0
+    bx: float = 2.0
+    ay: float = -2.0
+    by: float = 2.0
+    az: float = -2.0
+    bz: float = 2.0
+
+    def __post_init__(self):
+        for name in ("nx", "ny", "nz"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 8:
+                raise ValueError(f"Grid3D.{name} must be an integer >= 8, got {v!r}")
+        for a in "xyz":
+            lo, hi = getattr(self, "a" + a), getattr(self, "b" + a)
+            if not (hi > lo):
+                raise ValueError(f"Grid3D needs b{a} > a{a}, got a{a}={lo!r}, b{a}={hi!r}")
+
+    @property
+    def dx(self) -> float:
+        return (self.bx - self.ax) / self.nx
+
+    @property
+    def dy(self) -> float:
+        return (self.by - self.ay) / self.ny
+
+    @property
+    def dz(self) -> float:
+        return (self.bz - self.az) / self.nz
+
+    @property
+    def spacing(self) -> tuple[float, float, float]:
+        return (self.dx, self.dy, self.dz)
+
+    @property
+    def h(self) -> float:
+        """The smallest spacing."""
+        return min(self.spacing)
+
+    def shape(self, loc: Location = "node") -> tuple[int, int, int]:
+        n = (self.nx, self.ny, self.nz)
+        return n if loc == "node" else tuple(m + 1 for m in n)
+
+    def axes(self, loc: Location = "node") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """1D coordinates (x, y, z) of the given point set."""
+        if loc not in ("node", "corner"):
+            raise ValueError(f"unknown grid location {loc!r}; use 'node' or 'corner'")
+        out = []
+        for n, a, h in zip(
+            self.shape("node"), (self.ax, self.ay, self.az), self.spacing, strict=True
+        ):
+            out.append(a + (np.arange(n) + 0.5) * h if loc == "node" else a + np.arange(n + 1) * h)
+        return tuple(out)
+
+    def mesh(self, loc: Location = "node") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """3D coordinate arrays (X, Y, Z), each of ``self.shape(loc)``."""
+        return tuple(np.meshgrid(*self.axes(loc), indexing="ij"))
+
+    @property
+    def cell_volume(self) -> float:
+        return self.dx * self.dy * self.dz
+
+    def contains(self, x: float, y: float, z: float) -> bool:
+        return self.ax <= x <= self.bx and self.ay <= y <= self.by and self.az <= z <= self.bz

@@ -1,9 +1,12 @@
-"""Hyperelastic solid laws in 2D plane strain, defined by their strain energy.
+"""Hyperelastic solid laws in 2D plane strain and in 3D, defined by their strain energy.
 
-A solid is described by its strain energy per unit reference volume ``psi(F)``, where ``F`` is
-the 2x2 in-plane block of a plane-strain deformation gradient (the out-of-plane stretch
-``F33`` is 1 and the out-of-plane shears vanish).  The solver evaluates ``F = (grad xi)^-1``
-at every grid corner and needs the in-plane Cauchy stress
+A solid is described by its strain energy per unit reference volume ``psi(F)``.  In 2D (the
+default, ``dim=2``) ``F`` is the 2x2 in-plane block of a plane-strain deformation gradient
+(the out-of-plane stretch ``F33`` is 1 and the out-of-plane shears vanish); a law built with
+``dim=3`` takes the full 3x3 ``F``.  The built-in 2D laws are exactly the restriction of
+their 3D laws to ``F = diag(F2, 1)``: the 2D stress is the in-plane block of the 3D stress
+(tested).  The solver evaluates ``F = (grad xi)^-1`` at every grid corner and needs the
+Cauchy stress
 
     sigma = J^-1 P F^T,    P = d psi / d F,    J = det F.
 
@@ -16,11 +19,20 @@ Two routes give ``sigma``:
   it with closed forms written component by component (``F[..., 0, 0]`` ...), which is
   jit-friendly and avoids a per-point gradient.  For a user law it falls back to autodiff.
 
+Layouts.  ``F`` is stacked as ``(..., d, d)`` with ``F[..., i, j] = d x_i / d X_j`` (row =
+spatial component, column = reference direction), for ``d = 2`` or ``3``; ``stress``
+returns the full symmetric ``(..., d, d)`` Cauchy stress, exactly symmetric.  The stencils
+take a symmetric tensor as its ``d(d+1)/2`` independent components, in the row-major upper
+triangle order of ``refmap.operators.SYM_COMPONENTS``: ``(xx, xy, yy)`` in 2D and
+``(xx, xy, xz, yy, yz, zz)`` in 3D; ``sym_components`` and ``sym_from_components`` convert.
+The full matrix is kept as the law's output (as in 2D) because rotations, autodiff and the
+closed forms are written on it; the 6-component stack is what the corner arrays store.
+
 Every law is a frozen dataclass registered as a JAX pytree (``register_law``): its numeric parameters (moduli
 and the reference density ``rho0``) are pytree *data*, so a whole simulation can be
 differentiated with respect to them, vmapped over them, or passed through ``jax.jit`` as an
-ordinary argument.  Non-numeric configuration (the energy function of an ``EnergyLaw``) is
-pytree *metadata* and is static under ``jit``.
+ordinary argument.  Non-numeric configuration (the dimension ``dim`` and the energy function
+of an ``EnergyLaw``) is pytree *metadata* and is static under ``jit``.
 
 Parameters are checked when a law is built from plain Python numbers; values that are JAX
 arrays (including the tracers seen inside ``jit``/``grad``/``vmap`` and the cotangents that
@@ -53,6 +65,8 @@ __all__ = [
     "neo_hookean_energy",
     "register_law",
     "svk_energy",
+    "sym_components",
+    "sym_from_components",
 ]
 
 # --------------------------------------------------------------------------------------------
@@ -103,18 +117,93 @@ def _require_positive(cls_name: str, name: str, value: Any, what: str = "") -> N
         )
 
 
-def _as_float_stack(F: Any) -> jax.Array:
-    """``F`` as a floating JAX array of shape (..., 2, 2)."""
+def _check_dim(law: Any) -> None:
+    """``law.dim`` must be 2 or 3 (3.0 from a dict is accepted and stored as 3)."""
+    d = law.dim
+    ok = _is_plain_number(d) and float(d) in (2.0, 3.0)
+    if not ok:
+        raise ValueError(
+            f"{type(law).__name__}: parameter 'dim' must be 2 (plane strain) or 3, got dim={d!r}"
+        )
+    object.__setattr__(law, "dim", int(d))
+
+
+def _as_float_stack(F: Any, dim: int = 2) -> jax.Array:
+    """``F`` as a floating JAX array of shape (..., dim, dim)."""
     F = jnp.asarray(F)
     if not jnp.issubdtype(F.dtype, jnp.floating):
         F = F.astype(jnp.result_type(float))
-    if F.ndim < 2 or F.shape[-2:] != (2, 2):
-        raise ValueError(f"F must have shape (..., 2, 2), got {F.shape}")
+    if F.ndim < 2 or F.shape[-2:] != (dim, dim):
+        hint = "" if dim == 3 else " (a law built with dim=3 takes 3x3 F)"
+        raise ValueError(f"F must have shape (..., {dim}, {dim}), got {F.shape}{hint}")
     return F
 
 
 def _components(F: jax.Array):
     return F[..., 0, 0], F[..., 0, 1], F[..., 1, 0], F[..., 1, 1]
+
+
+def _entries(F: jax.Array) -> list[list[jax.Array]]:
+    """The d x d entries ``F[..., i, j]`` of a stack of square matrices, as nested lists."""
+    d = F.shape[-1]
+    return [[F[..., i, j] for j in range(d)] for i in range(d)]
+
+
+def _det3(f: list[list[jax.Array]]) -> jax.Array:
+    """Determinant of a 3x3 stack given by its entries (cofactor expansion on row 0)."""
+    return (
+        f[0][0] * (f[1][1] * f[2][2] - f[1][2] * f[2][1])
+        - f[0][1] * (f[1][0] * f[2][2] - f[1][2] * f[2][0])
+        + f[0][2] * (f[1][0] * f[2][1] - f[1][1] * f[2][0])
+    )
+
+
+def _det(F: jax.Array) -> jax.Array:
+    """det F of a (..., 2, 2) or (..., 3, 3) stack (2D: the formula the 2D laws use)."""
+    if F.shape[-1] == 2:
+        F00, F01, F10, F11 = _components(F)
+        return F00 * F11 - F01 * F10
+    return _det3(_entries(F))
+
+
+def _gram(f: list[list[jax.Array]], rows: bool) -> dict[tuple[int, int], jax.Array]:
+    """Upper triangle of ``F F^T`` (rows=True, i.e. B) or ``F^T F`` (rows=False, i.e. C)."""
+    d = len(f)
+    out = {}
+    for a in range(d):
+        for b in range(a, d):
+            terms = [f[a][k] * f[b][k] if rows else f[k][a] * f[k][b] for k in range(d)]
+            acc = terms[0]
+            for t in terms[1:]:
+                acc = acc + t
+            out[a, b] = acc
+    return out
+
+
+def _sym_matrix(upper: dict[tuple[int, int], jax.Array], d: int) -> jax.Array:
+    """Assemble an exactly symmetric (..., d, d) stack from its upper triangle."""
+    rows = [jnp.stack([upper[min(a, b), max(a, b)] for b in range(d)], axis=-1) for a in range(d)]
+    return jnp.stack(rows, axis=-2)
+
+
+def sym_components(sigma: jax.Array) -> tuple[jax.Array, ...]:
+    """The independent components of a symmetric (..., d, d) stack, in the stencils' order.
+
+    2D: ``(xx, xy, yy)``; 3D: ``(xx, xy, xz, yy, yz, zz)`` (``refmap.operators.SYM_COMPONENTS``),
+    ready for ``refmap.operators.div_node(*sym_components(sigma), *spacings)``.
+    """
+    d = sigma.shape[-1]
+    return tuple(sigma[..., a, b] for a in range(d) for b in range(a, d))
+
+
+def sym_from_components(components, dim: int) -> jax.Array:
+    """Inverse of ``sym_components``: the (..., dim, dim) symmetric stack."""
+    pairs = [(a, b) for a in range(dim) for b in range(a, dim)]
+    if len(components) != len(pairs):
+        raise ValueError(
+            f"a symmetric {dim}x{dim} tensor has {len(pairs)} components, got {len(components)}"
+        )
+    return _sym_matrix(dict(zip(pairs, components, strict=True)), dim)
 
 
 def _sym2(s00: jax.Array, s01: jax.Array, s11: jax.Array) -> jax.Array:
@@ -183,27 +272,40 @@ def register_law(cls: type) -> type:
 
 @dataclass(frozen=True)
 class HyperelasticLaw(abc.ABC):
-    """Abstract hyperelastic solid under plane strain, defined by an energy ``psi(F)``.
+    """Abstract hyperelastic solid, defined by an energy ``psi(F)``.
 
     Concrete laws are frozen dataclasses registered as pytrees (see ``register_law``) with a
     ``rho0`` field (reference density) and their moduli as data fields.  Subclasses must
     implement ``psi``; they may override ``stress`` with a closed form and ``validate`` with
     checks that name their own parameters.
+
+    ``dim`` (keyword only, static): 2 (default) for plane strain on 2x2 ``F``, 3 for the full
+    3x3 ``F``; ``stress`` refuses the other size.  ``law.with_dim(3)`` is the same material
+    in 3D.
     """
 
     #: key of the law in ``LAWS`` / in ``to_dict()`` output (None: not serialisable).
     name: ClassVar[str | None] = None
 
+    dim: int = field(default=2, kw_only=True, metadata={"static": True})
+
     # ---- construction-time checks ------------------------------------------------------------
 
     def __post_init__(self) -> None:
+        _check_dim(self)
         # Python ints become floats so every leaf is differentiable.
         for f in dataclasses.fields(self):
+            if f.metadata.get("static", False):
+                continue
             v = getattr(self, f.name)
             if isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)):
                 object.__setattr__(self, f.name, float(v))
         if self._params_are_plain():
             self.validate()
+
+    def with_dim(self, dim: int) -> HyperelasticLaw:
+        """The same law (same parameters) for ``dim``-dimensional ``F``."""
+        return dataclasses.replace(self, dim=dim)
 
     def _data_leaves(self) -> list[Any]:
         return jax.tree_util.tree_leaves(self)
@@ -230,10 +332,10 @@ class HyperelasticLaw(abc.ABC):
 
     @abc.abstractmethod
     def psi(self, F: jax.Array) -> jax.Array:
-        """Strain energy per unit reference volume for one 2x2 deformation gradient."""
+        """Strain energy per unit reference volume for one ``dim x dim`` deformation gradient."""
 
     def stress(self, F: jax.Array) -> jax.Array:
-        """Cauchy stress (..., 2, 2) for F of shape (..., 2, 2).
+        """Cauchy stress (..., d, d) for F of shape (..., d, d), ``d = self.dim``.
 
         The default is the autodiff route; built-in laws override it with a closed form.
         """
@@ -244,13 +346,14 @@ class HyperelasticLaw(abc.ABC):
 
         Always the autodiff route, whatever ``stress`` does; useful to check a closed form.
         """
-        F = _as_float_stack(F)
+        d = self.dim
+        F = _as_float_stack(F, d)
         batch = F.shape[:-2]
-        Ff = F.reshape((-1, 2, 2))
+        Ff = F.reshape((-1, d, d))
         P = jax.vmap(jax.grad(self.psi))(Ff)
-        J = Ff[:, 0, 0] * Ff[:, 1, 1] - Ff[:, 0, 1] * Ff[:, 1, 0]
+        J = _det(Ff)
         sigma = jnp.einsum("nik,njk->nij", P, Ff) / J[:, None, None]
-        return sigma.reshape(batch + (2, 2))
+        return sigma.reshape(batch + (d, d))
 
     # ---- small-strain properties -------------------------------------------------------------
 
@@ -261,9 +364,9 @@ class HyperelasticLaw(abc.ABC):
         M = d sigma_11 / d eps for F = I + eps e1 (x) e1 (uniaxial strain): the shear and
         longitudinal (P-wave) moduli that set the linear wave speeds.
         """
-        eye = jnp.eye(2)
-        shear = jnp.array([[0.0, 1.0], [0.0, 0.0]])
-        stretch = jnp.array([[1.0, 0.0], [0.0, 0.0]])
+        eye = jnp.eye(self.dim)
+        shear = jnp.zeros((self.dim, self.dim)).at[0, 1].set(1.0)
+        stretch = jnp.zeros((self.dim, self.dim)).at[0, 0].set(1.0)
         zero = jnp.zeros((), dtype=eye.dtype)
         mu = jax.jacfwd(lambda g: self.stress(eye + g * shear)[0, 1])(zero)
         M = jax.jacfwd(lambda e: self.stress(eye + e * stretch)[0, 0])(zero)
@@ -282,6 +385,10 @@ class HyperelasticLaw(abc.ABC):
             raise ValueError(f"{type(self).__name__} has no registry name and cannot be serialised")
         out: dict[str, Any] = {"law": self.name}
         for f in dataclasses.fields(self):
+            if f.name == "dim":  # written only for 3D, so 2D dicts are unchanged
+                if self.dim != 2:
+                    out["dim"] = self.dim
+                continue
             v = getattr(self, f.name)
             arr = np.asarray(v, dtype=float)
             out[f.name] = float(arr) if arr.ndim == 0 else arr.tolist()
@@ -296,8 +403,8 @@ class HyperelasticLaw(abc.ABC):
 class EnergyLaw(HyperelasticLaw):
     """A law given only by its energy ``psi_fn(F, params)``; stress comes from autodiff.
 
-    ``psi_fn`` takes one 2x2 ``F`` and the ``params`` dict and returns a scalar written with
-    ``jax.numpy``.  The function is static pytree metadata (changing it retraces a jitted
+    ``psi_fn`` takes one ``dim x dim`` ``F`` (2x2 unless built with ``dim=3``) and the
+    ``params`` dict and returns a scalar written with ``jax.numpy``.  The function is static pytree metadata (changing it retraces a jitted
     caller); ``params`` (any pytree of numbers, typically a dict of floats) and ``rho0`` are
     data, so they can be differentiated.  Example::
 
@@ -313,6 +420,7 @@ class EnergyLaw(HyperelasticLaw):
     rho0: float = 1.0
 
     def __post_init__(self) -> None:
+        _check_dim(self)
         if not callable(self.psi_fn):
             raise TypeError(f"EnergyLaw: psi_fn must be callable, got {self.psi_fn!r}")
         if isinstance(self.rho0, (int, np.integer)) and not isinstance(self.rho0, bool):
@@ -361,9 +469,14 @@ def neo_hookean_energy(F: jax.Array, params: Mapping[str, Any]) -> jax.Array:
     """Valkov's compressible neo-Hookean energy, plane strain (params: ``G``, ``kappa``).
 
     psi = G/2 (J^(-2/3) tr3(B) - 3) + kappa/2 (J - 1)^2, with tr3 B = tr(F F^T) + 1
-    (the out-of-plane stretch is 1).  Works elementwise on (..., 2, 2).
+    (the out-of-plane stretch is 1).  Works elementwise on (..., 2, 2); on (..., 3, 3) it is
+    the 3D energy with tr3 B = tr(F F^T), of which the 2D one is the restriction.
     """
     G, kappa = params["G"], params["kappa"]
+    if F.shape[-1] == 3:
+        J = _det(F)
+        I1 = jnp.sum(F * F, axis=(-2, -1))
+        return 0.5 * G * (I1 / jnp.cbrt(J) ** 2 - 3.0) + 0.5 * kappa * (J - 1.0) ** 2
     F00, F01, F10, F11 = _components(F)
     J = F00 * F11 - F01 * F10
     I1 = F00 * F00 + F01 * F01 + F10 * F10 + F11 * F11 + 1.0
@@ -373,9 +486,15 @@ def neo_hookean_energy(F: jax.Array, params: Mapping[str, Any]) -> jax.Array:
 def log_neo_hookean_energy(F: jax.Array, params: Mapping[str, Any]) -> jax.Array:
     """2D neo-Hookean energy with a logarithmic volume term (params: ``G``, ``kappa``).
 
-    psi = G/2 (tr C - 2 - 2 ln J) + kappa/2 (J - 1)^2.  Works elementwise on (..., 2, 2).
+    psi = G/2 (tr C - 2 - 2 ln J) + kappa/2 (J - 1)^2.  Works elementwise on (..., 2, 2); on
+    (..., 3, 3) it is the 3D energy G/2 (tr C - 3 - 2 ln J) + kappa/2 (J - 1)^2, whose
+    restriction to F = diag(F2, 1) is the 2D one (tr C gains the 1 of C33).
     """
     G, kappa = params["G"], params["kappa"]
+    if F.shape[-1] == 3:
+        J = _det(F)
+        trC = jnp.sum(F * F, axis=(-2, -1))
+        return 0.5 * G * (trC - 3.0 - 2.0 * jnp.log(J)) + 0.5 * kappa * (J - 1.0) ** 2
     F00, F01, F10, F11 = _components(F)
     J = F00 * F11 - F01 * F10
     trC = F00 * F00 + F01 * F01 + F10 * F10 + F11 * F11
@@ -385,9 +504,16 @@ def log_neo_hookean_energy(F: jax.Array, params: Mapping[str, Any]) -> jax.Array
 def svk_energy(F: jax.Array, params: Mapping[str, Any]) -> jax.Array:
     """Saint Venant-Kirchhoff energy, plane strain (params: ``mu``, ``lam``).
 
-    psi = lam/2 (tr E)^2 + mu tr(E^2), E = (F^T F - I)/2.  Works elementwise on (..., 2, 2).
+    psi = lam/2 (tr E)^2 + mu tr(E^2), E = (F^T F - I)/2.  Works elementwise on (..., 2, 2)
+    (plane strain: E33 = 0) and on (..., 3, 3).
     """
     mu, lam = params["mu"], params["lam"]
+    if F.shape[-1] == 3:
+        C = _gram(_entries(F), rows=False)
+        E = {k: 0.5 * (v - 1.0) if k[0] == k[1] else 0.5 * v for k, v in C.items()}
+        trE = E[0, 0] + E[1, 1] + E[2, 2]
+        trE2 = sum(v * v if k[0] == k[1] else 2.0 * v * v for k, v in E.items())
+        return 0.5 * lam * trE**2 + mu * trE2
     F00, F01, F10, F11 = _components(F)
     E00 = 0.5 * (F00 * F00 + F10 * F10 - 1.0)
     E01 = 0.5 * (F00 * F01 + F10 * F11)
@@ -431,7 +557,18 @@ class NeoHookean(HyperelasticLaw):
         return neo_hookean_energy(F, {"G": self.G, "kappa": self.kappa})
 
     def stress(self, F: jax.Array) -> jax.Array:
-        F = _as_float_stack(F)
+        F = _as_float_stack(F, self.dim)
+        if self.dim == 3:  # sigma = G J^(-5/3) (B - tr(B)/3 I) + kappa (J - 1) I
+            f = _entries(F)
+            J = _det3(f)
+            B = _gram(f, rows=True)
+            third_tr = (B[0, 0] + B[1, 1] + B[2, 2]) / 3.0
+            c = jnp.cbrt(J)
+            g = self.G / (J * c * c)
+            p = self.kappa * (J - 1.0)
+            return _sym_matrix(
+                {k: g * (v - third_tr) + p if k[0] == k[1] else g * v for k, v in B.items()}, 3
+            )
         F00, F01, F10, F11 = _components(F)
         J = F00 * F11 - F01 * F10
         B00 = F00 * F00 + F01 * F01
@@ -481,7 +618,16 @@ class LogNeoHookean(HyperelasticLaw):
         return log_neo_hookean_energy(F, {"G": self.G, "kappa": self.kappa})
 
     def stress(self, F: jax.Array) -> jax.Array:
-        F = _as_float_stack(F)
+        F = _as_float_stack(F, self.dim)
+        if self.dim == 3:  # sigma = (G / J) (B - I) + kappa (J - 1) I
+            f = _entries(F)
+            J = _det3(f)
+            B = _gram(f, rows=True)
+            g = self.G / J
+            p = self.kappa * (J - 1.0)
+            return _sym_matrix(
+                {k: g * (v - 1.0) + p if k[0] == k[1] else g * v for k, v in B.items()}, 3
+            )
         F00, F01, F10, F11 = _components(F)
         J = F00 * F11 - F01 * F10
         g = self.G / J
@@ -514,7 +660,9 @@ class StVenantKirchhoff(HyperelasticLaw):
     rho0: float = 1.0
 
     @classmethod
-    def from_E_nu(cls, E: float, nu: float, rho0: float = 1.0) -> StVenantKirchhoff:
+    def from_E_nu(
+        cls, E: float, nu: float, rho0: float = 1.0, *, dim: int = 2
+    ) -> StVenantKirchhoff:
         """From Young's modulus and Poisson's ratio (3D relations, -1 < nu < 1/2)."""
         if _is_concrete(E) and not np.all(np.asarray(E, dtype=float) > 0):
             raise ValueError(f"StVenantKirchhoff: parameter 'E' must be positive, got E={_fmt(E)}")
@@ -526,14 +674,16 @@ class StVenantKirchhoff(HyperelasticLaw):
                 )
         mu = E / (2.0 * (1.0 + nu))
         lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
-        return cls(mu, lam, rho0)
+        return cls(mu, lam, rho0, dim=dim)
 
     @classmethod
-    def from_G_kappa(cls, G: float, kappa: float, rho0: float = 1.0) -> StVenantKirchhoff:
+    def from_G_kappa(
+        cls, G: float, kappa: float, rho0: float = 1.0, *, dim: int = 2
+    ) -> StVenantKirchhoff:
         """From shear and 3D bulk moduli: ``mu = G``, ``lam = kappa - 2G/3``."""
         _require_positive("StVenantKirchhoff", "G", G, "shear modulus")
         _require_positive("StVenantKirchhoff", "kappa", kappa, "bulk modulus")
-        return cls(G, kappa - 2.0 * G / 3.0, rho0)
+        return cls(G, kappa - 2.0 * G / 3.0, rho0, dim=dim)
 
     def validate(self) -> None:
         _require_positive("StVenantKirchhoff", "mu", self.mu, "shear modulus")
@@ -550,7 +700,29 @@ class StVenantKirchhoff(HyperelasticLaw):
         return svk_energy(F, {"mu": self.mu, "lam": self.lam})
 
     def stress(self, F: jax.Array) -> jax.Array:
-        F = _as_float_stack(F)
+        F = _as_float_stack(F, self.dim)
+        if self.dim == 3:  # sigma = J^-1 F S F^T, S = lam tr(E) I + 2 mu E
+            f = _entries(F)
+            J = _det3(f)
+            C = _gram(f, rows=False)
+            E = {k: 0.5 * (v - 1.0) if k[0] == k[1] else 0.5 * v for k, v in C.items()}
+            ltr = self.lam * (E[0, 0] + E[1, 1] + E[2, 2])
+            S = {
+                k: ltr + 2.0 * self.mu * v if k[0] == k[1] else 2.0 * self.mu * v
+                for k, v in E.items()
+            }
+
+            def s(a, b):
+                return S[min(a, b), max(a, b)]
+
+            A = [[sum(f[i][k] * s(k, j) for k in range(3)) for j in range(3)] for i in range(3)]
+            inv_J = 1.0 / J
+            sigma = {
+                (a, b): sum(A[a][k] * f[b][k] for k in range(3)) * inv_J
+                for a in range(3)
+                for b in range(a, 3)
+            }
+            return _sym_matrix(sigma, 3)
         F00, F01, F10, F11 = _components(F)
         J = F00 * F11 - F01 * F10
         E00 = 0.5 * (F00 * F00 + F10 * F10 - 1.0)
@@ -598,8 +770,8 @@ def law_from_dict(d: Mapping[str, Any]) -> HyperelasticLaw:
     cls = LAWS[key]
     kwargs = {k: v for k, v in d.items() if k != "law"}
     if cls is StVenantKirchhoff:
-        rest = {k: v for k, v in kwargs.items() if k != "rho0"}
-        extra = {"rho0": kwargs["rho0"]} if "rho0" in kwargs else {}
+        rest = {k: v for k, v in kwargs.items() if k not in ("rho0", "dim")}
+        extra = {k: kwargs[k] for k in ("rho0", "dim") if k in kwargs}
         if set(rest) == {"E", "nu"}:
             return StVenantKirchhoff.from_E_nu(rest["E"], rest["nu"], **extra)
         if set(rest) == {"G", "kappa"}:

@@ -1,66 +1,153 @@
-"""Finite-difference operators of the blurred-interface RMT.
+"""Finite-difference operators of the blurred-interface RMT, in two or three dimensions.
 
 Every operator here is a pure function of arrays (jit-able, differentiable).  Node fields
-come in *padded* with ghost layers (see :mod:`refmap.boundary`): ``fp`` has shape
-``(nx + 2g, ny + 2g)`` with ``g`` ghost layers on each side.
+come in *padded* with ghost layers (see :mod:`refmap.boundary`): in 2D ``fp`` has shape
+``(nx + 2g, ny + 2g)``, in 3D ``(nx + 2g, ny + 2g, nz + 2g)``, with ``g`` ghost layers on each
+side; any leading axes (components, solids) are free.
+
+The dimension ``d`` is never guessed from an array's shape (leading axes make that
+ambiguous).  Operators that take grid spacings read it from their number:
+``grad_corner(fp, dx, dy)`` is 2D and ``grad_corner(fp, dx, dy, dz)`` is 3D; the averaging
+and slicing helpers take ``ndim`` (default 2).  There is one code path for every ``d``: the
+stencils are written as loops over the axes, and for ``d = 2`` they perform exactly the
+arithmetic of the original 2D formulas, in the same order, so 2D results are bitwise
+unchanged (tested against verbatim copies of the 2D code).
 
 The two stencils that cross between the point sets are the heart of the method's stability
-(thesis section 3.8):
+(thesis section 3.8).  With ``e_a`` the unit index step along axis ``a``:
 
-* :func:`grad_corner` -- node -> corner, the "bottom-left triangle": at the corner between
-  nodes (i-1, i) x (j-1, j), ``d/dx = (f[BR] - f[BL]) / dx`` and ``d/dy = (f[TL] - f[BL]) / dy``.
-* :func:`div_node` -- corner -> node, the "top-right triangle" of the node's four corners:
-  ``d s_x./dx = (s[TR] - s[TL]) / dx`` and ``d s_.y/dy = (s[TR] - s[BR]) / dy``.
+* :func:`grad_corner` -- node -> corner, the "bottom-left triangle" (in 3D: the
+  bottom-left-front corner node and its ``d`` neighbours along the axes): at the corner
+  whose lowest surrounding node is BL, ``df/dx_a = (f[BL + e_a] - f[BL]) / h_a``.
+* :func:`div_node` -- corner -> node, the "top-right triangle" of the node's ``2^d`` corners:
+  ``(div s)_a = sum_b (s_ab[TR] - s_ab[TR - e_b]) / h_b`` with TR the node's highest corner.
 
-With zero ghost values the two are exactly minus each other's transpose (tested), so the
-discrete elastic energy has no zero-energy checkerboard mode.  The price is a first-order
-bias (the thesis measures orders 1.26 to 1.55).
+With zero ghost values the two are exactly minus each other's transpose (tested with
+``jax.linear_transpose``), their composition is the standard (2d+1)-point Laplacian, and on
+a periodic grid the only zero-energy modes of ``div_node o sym o grad_corner`` are the ``d``
+uniform translations: no checkerboard.  The price is a first-order bias (the thesis
+measures orders 1.26 to 1.55).
+
+Symmetric corner tensors are passed as their independent components in row-major upper
+triangle order, ``SYM_COMPONENTS[d]``: ``(xx, xy, yy)`` in 2D and
+``(xx, xy, xz, yy, yz, zz)`` in 3D (``sym_index`` maps ``(a, b)`` to the position).
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
 
+#: names of the independent components of a symmetric tensor, in the order used everywhere
+SYM_COMPONENTS = {
+    2: ("xx", "xy", "yy"),
+    3: ("xx", "xy", "xz", "yy", "yz", "zz"),
+}
 
-def grad_corner(fp, dx, dy):
+#: number of positional arguments of div_node -> dimension (d(d+1)/2 components + d spacings)
+_DIV_NODE_NARGS = {2: 1, 5: 2, 9: 3}
+
+
+def sym_index(a: int, b: int, ndim: int) -> int:
+    """Position of component (a, b) of a symmetric ``ndim x ndim`` tensor in its stack.
+
+    Row-major upper triangle: 2D (xx, xy, yy), 3D (xx, xy, xz, yy, yz, zz).
+    """
+    a, b = min(a, b), max(a, b)
+    return a * ndim - a * (a - 1) // 2 + (b - a)
+
+
+def _ndim_of(h, what: str) -> int:
+    if len(h) not in (1, 2, 3):
+        raise TypeError(f"{what} takes one grid spacing per axis (1 to 3 of them), got {len(h)}")
+    return len(h)
+
+
+def _view(fp, ndim: int, lows):
+    """``fp[..., lows[0]:, ...]``-style view: along each of the last ``ndim`` axes keep the
+    entries from ``lows[a]`` (0 or 1) on, dropping one entry at the other end."""
+    idx = tuple(slice(None, -1) if lo == 0 else slice(1, None) for lo in lows)
+    return fp[(Ellipsis, *idx)]
+
+
+def grad_corner(fp, *h):
     """Bottom-left-triangle gradient of a node field padded with ONE ghost layer.
 
-    ``fp``: (..., nx + 2, ny + 2).  Returns ``(df/dx, df/dy)``, each (..., nx + 1, ny + 1).
-    Corner (i, j) sits between nodes i-1 and i; in padded indices its bottom-left node is
-    (i, j), bottom-right (i + 1, j), top-left (i, j + 1).
+    ``fp``: (..., nx + 2, ny + 2[, nz + 2]); ``h``: the spacings (dx, dy[, dz]).  Returns the
+    tuple of the ``d`` partial derivatives, each (..., nx + 1, ny + 1[, nz + 1]).  Corner i
+    sits between nodes i-1 and i along each axis; in padded indices its bottom-left node is
+    (i, j[, k]) and ``df/dx_a`` is the difference to the next node along axis ``a``.
     """
-    bl = fp[..., :-1, :-1]
-    fx = (fp[..., 1:, :-1] - bl) / dx
-    fy = (fp[..., :-1, 1:] - bl) / dy
-    return fx, fy
+    d = _ndim_of(h, "grad_corner")
+    bl = _view(fp, d, (0,) * d)
+    out = []
+    for a in range(d):
+        nb = _view(fp, d, tuple(1 if b == a else 0 for b in range(d)))
+        out.append((nb - bl) / h[a])
+    return tuple(out)
 
 
-def div_node(sxx, sxy, syy, dx, dy):
+def div_node_vector(q, *h):
+    """Top-right-triangle divergence of a corner vector field -> node scalar.
+
+    ``q``: sequence of the ``d`` components, each (..., nx + 1, ny + 1[, nz + 1]); returns
+    (..., nx, ny[, nz]): ``sum_b (q_b[TR] - q_b[TR - e_b]) / h_b``.  Exactly minus the
+    transpose of :func:`grad_corner` with zero ghost values.
+    """
+    d = _ndim_of(h, "div_node_vector")
+    if len(q) != d:
+        raise ValueError(f"div_node_vector: {d} spacings need {d} components, got {len(q)}")
+    top = (1,) * d
+    acc = None
+    for b in range(d):
+        low = tuple(0 if c == b else 1 for c in range(d))
+        term = (_view(q[b], d, top) - _view(q[b], d, low)) / h[b]
+        acc = term if acc is None else acc + term
+    return acc
+
+
+def div_node(*args):
     """Top-right-triangle divergence of a symmetric corner tensor field -> node vector.
 
-    Inputs (..., nx + 1, ny + 1); returns (..., 2, nx, ny).  Node (i, j) has corners
-    BL = (i, j), BR = (i + 1, j), TL = (i, j + 1), TR = (i + 1, j + 1).
+    2D: ``div_node(sxx, sxy, syy, dx, dy)``; 3D:
+    ``div_node(sxx, sxy, sxz, syy, syz, szz, dx, dy, dz)`` (components in
+    ``SYM_COMPONENTS`` order).  Inputs (..., nx + 1, ny + 1[, nz + 1]); returns
+    (..., d, nx, ny[, nz]) with ``(div s)_a = sum_b (s_ab[TR] - s_ab[TR - e_b]) / h_b``.
+    In 2D, node (i, j) has corners BL = (i, j), BR = (i + 1, j), TL = (i, j + 1),
+    TR = (i + 1, j + 1).
     """
-    tr = (slice(1, None), slice(1, None))
-    tl = (slice(None, -1), slice(1, None))
-    br = (slice(1, None), slice(None, -1))
-    fx = (sxx[..., tr[0], tr[1]] - sxx[..., tl[0], tl[1]]) / dx + (
-        sxy[..., tr[0], tr[1]] - sxy[..., br[0], br[1]]
-    ) / dy
-    fy = (sxy[..., tr[0], tr[1]] - sxy[..., tl[0], tl[1]]) / dx + (
-        syy[..., tr[0], tr[1]] - syy[..., br[0], br[1]]
-    ) / dy
-    return jnp.stack([fx, fy], axis=-3)
+    d = _DIV_NODE_NARGS.get(len(args))
+    if d is None:
+        raise TypeError(
+            "div_node takes the d(d+1)/2 symmetric components then d spacings "
+            f"(5 arguments in 2D, 9 in 3D), got {len(args)}"
+        )
+    comps, h = args[:-d], args[-d:]
+    rows = [div_node_vector([comps[sym_index(a, b, d)] for b in range(d)], *h) for a in range(d)]
+    return jnp.stack(rows, axis=-(d + 1))
 
 
-def corner_average(fp):
-    """Average of the four nodes around each corner; ``fp`` padded with one ghost layer."""
-    return 0.25 * (fp[..., :-1, :-1] + fp[..., 1:, :-1] + fp[..., :-1, 1:] + fp[..., 1:, 1:])
+def _offsets(ndim: int):
+    """The 2^ndim (0/1) offsets of a cell's points, the first axis varying fastest
+    (2D: BL, BR, TL, TR -- the order of the original 2D sums)."""
+    return [tuple((n >> a) & 1 for a in range(ndim)) for n in range(2**ndim)]
 
 
-def node_average(fc):
-    """Average of a corner field over the four corners of each node -> (..., nx, ny)."""
-    return 0.25 * (fc[..., :-1, :-1] + fc[..., 1:, :-1] + fc[..., :-1, 1:] + fc[..., 1:, 1:])
+def _cell_mean(f, ndim: int):
+    acc = None
+    for lows in _offsets(ndim):
+        v = _view(f, ndim, lows)
+        acc = v if acc is None else acc + v
+    return 0.5**ndim * acc
+
+
+def corner_average(fp, ndim: int = 2):
+    """Average of the 2^ndim nodes around each corner; ``fp`` padded with one ghost layer."""
+    return _cell_mean(fp, ndim)
+
+
+def node_average(fc, ndim: int = 2):
+    """Average of a corner field over the 2^ndim corners of each node -> (..., nx, ny[, nz])."""
+    return _cell_mean(fc, ndim)
 
 
 #: relative margin below which the two ENO smoothness indicators count as tied (see _eno2)
@@ -83,55 +170,100 @@ def _eno2(p0, p1, p2, p3):
     return jnp.where(one_sided, 3 * p1 - 4 * p2 + p3, p0 - p2)
 
 
-def _shift(fp, axis, k, g):
-    """Interior-sized view of a padded field shifted by k cells along ``axis`` (g ghosts)."""
-    nx = fp.shape[-2] - 2 * g
-    ny = fp.shape[-1] - 2 * g
-    if axis == 0:
-        return fp[..., g + k : g + k + nx, g : g + ny]
-    return fp[..., g : g + nx, g + k : g + k + ny]
+def _shift(fp, axis, k, g, ndim: int = 2):
+    """Interior-sized view of a padded field shifted by k cells along ``axis`` (g ghosts).
 
-
-def eno_derivatives(fp, vel, dx, dy):
-    """Upwind second-order ENO first derivatives (d/dx, d/dy) of a padded node field.
-
-    ``fp``: (..., nx + 4, ny + 4) with two ghost layers; ``vel``: (2, nx, ny), the advecting
-    velocity, which picks the upwind side at every node.
+    ``axis`` counts the ``ndim`` spatial axes (0 = x); the view has the interior shape.
     """
+    idx = []
+    for a in range(ndim):
+        n = fp.shape[a - ndim] - 2 * g
+        lo = g + (k if a == axis else 0)
+        idx.append(slice(lo, lo + n))
+    return fp[(Ellipsis, *idx)]
+
+
+def eno_derivatives(fp, vel, *h):
+    """Upwind second-order ENO first derivatives (d/dx, d/dy[, d/dz]) of a padded node field.
+
+    ``fp``: (..., nx + 4, ny + 4[, nz + 4]) with two ghost layers; ``vel``: (d, nx, ny[, nz]),
+    the advecting velocity, which picks the upwind side at every node.  Returns a tuple.
+    """
+    d = _ndim_of(h, "eno_derivatives")
     out = []
-    for axis, h in ((0, dx), (1, dy)):
-        fm2, fm1, f0, f1, f2 = (_shift(fp, axis, k, 2) for k in (-2, -1, 0, 1, 2))
-        back = _eno2(f1, f0, fm1, fm2) / (2 * h)  # used where the velocity is positive
-        fwd = -_eno2(fm1, f0, f1, f2) / (2 * h)
+    for axis in range(d):
+        fm2, fm1, f0, f1, f2 = (_shift(fp, axis, k, 2, d) for k in (-2, -1, 0, 1, 2))
+        back = _eno2(f1, f0, fm1, fm2) / (2 * h[axis])  # used where the velocity is positive
+        fwd = -_eno2(fm1, f0, f1, f2) / (2 * h[axis])
         out.append(jnp.where(vel[axis] > 0, back, fwd))
-    return out[0], out[1]
+    return tuple(out)
 
 
-def advect(fp, vel, dx, dy):
+def advect(fp, vel, *h):
     """-(v . grad) f with ENO upwinding; ``fp`` padded with two ghost layers."""
-    fx, fy = eno_derivatives(fp, vel, dx, dy)
-    return -(vel[0] * fx + vel[1] * fy)
+    grads = eno_derivatives(fp, vel, *h)
+    acc = vel[0] * grads[0]
+    for a in range(1, len(grads)):
+        acc = acc + vel[a] * grads[a]
+    return -acc
 
 
-def laplacian(fp, dx, dy, g=1):
-    """Five-point Laplacian of a padded node field (g ghost layers) -> interior shape."""
-    c = _shift(fp, 0, 0, g)
-    return (_shift(fp, 0, 1, g) - 2 * c + _shift(fp, 0, -1, g)) / dx**2 + (
-        _shift(fp, 1, 1, g) - 2 * c + _shift(fp, 1, -1, g)
-    ) / dy**2
+def laplacian(fp, *h, g=1):
+    """(2d+1)-point Laplacian of a padded node field (g ghost layers) -> interior shape.
+
+    ``g`` is keyword-only: every positional number after ``fp`` is a grid spacing.
+    """
+    d = _ndim_of(h, "laplacian")
+    c = _shift(fp, 0, 0, g, d)
+    acc = None
+    for a in range(d):
+        term = (_shift(fp, a, 1, g, d) - 2 * c + _shift(fp, a, -1, g, d)) / h[a] ** 2
+        acc = term if acc is None else acc + term
+    return acc
 
 
-def divergence_centered(up, vp, dx, dy, g=1):
-    """Centred-difference divergence of a padded node vector field (thesis eq. 4.28)."""
-    return (_shift(up, 0, 1, g) - _shift(up, 0, -1, g)) / (2 * dx) + (
-        _shift(vp, 1, 1, g) - _shift(vp, 1, -1, g)
-    ) / (2 * dy)
+def divergence_centered(*args, g=1):
+    """Centred-difference divergence of a padded node vector field (thesis eq. 4.28).
+
+    2D: ``divergence_centered(up, vp, dx, dy, g=1)``; 3D:
+    ``divergence_centered(up, vp, wp, dx, dy, dz, g=1)``.
+    """
+    if len(args) not in (2, 4, 6):
+        raise TypeError(
+            "divergence_centered takes d padded components then d spacings "
+            f"(4 arguments in 2D, 6 in 3D), got {len(args)}"
+        )
+    d = len(args) // 2
+    comps, h = args[:d], args[d:]
+    acc = None
+    for a in range(d):
+        term = (_shift(comps[a], a, 1, g, d) - _shift(comps[a], a, -1, g, d)) / (2 * h[a])
+        acc = term if acc is None else acc + term
+    return acc
 
 
-def unpad(fp, g):
-    return fp[..., g:-g, g:-g]
+def unpad(fp, g, ndim: int = 2):
+    """Drop ``g`` ghost layers on each side of the last ``ndim`` axes."""
+    return fp[(Ellipsis, *(slice(g, -g) for _ in range(ndim)))]
 
 
-def sym_grad(ux, uy, vx, vy):
-    """Symmetric part of a velocity gradient given its corner components -> (xx, xy, yy)."""
-    return ux, 0.5 * (uy + vx), vy
+def sym_grad(*grads):
+    """Symmetric part of a velocity gradient given its corner components.
+
+    2D: ``sym_grad(ux, uy, vx, vy) -> (xx, xy, yy)``; 3D: the nine components
+    ``(ux, uy, uz, vx, vy, vz, wx, wy, wz)`` (row a = derivatives of component a) ->
+    ``(xx, xy, xz, yy, yz, zz)``.  Diagonal entries are returned as given.
+    """
+    d = {1: 1, 4: 2, 9: 3}.get(len(grads))
+    if d is None:
+        raise TypeError(
+            f"sym_grad takes d*d gradient components (4 in 2D, 9 in 3D), got {len(grads)}"
+        )
+    out = []
+    for a in range(d):
+        for b in range(a, d):
+            if a == b:
+                out.append(grads[a * d + a])
+            else:
+                out.append(0.5 * (grads[a * d + b] + grads[b * d + a]))
+    return tuple(out)
