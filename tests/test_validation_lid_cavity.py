@@ -76,10 +76,10 @@ def _load_incompressible():
 
 def test_lid_cavity_disc_incompressible_first_loop_32():
     """The same disc in an incompressible fluid (validation/incompressible.py), 32^2 to
-    t = 8.5 (one turn at t = 7.9), with the default volume correction (f = 0.05).
-    Measured: area change over the first loop +0.77 % (without the correction +26 %, and
-    the run blew up at t = 18.1), RMS loop-matched distance 0.0117 (without: 0.0257),
-    extents errors x_max +0.004, x_min +0.016, y_max 0.000, y_min -0.001.  Bounds: area
+    t = 8.5 (one turn at t = 7.8), with the default volume correction (rate 10).
+    Measured: area change over the first loop +0.76 % (without the correction +26 %, and
+    the run blew up at t = 18.1), RMS loop-matched distance 0.0112 (without: 0.0257),
+    extents errors x_max +0.002, x_min +0.016, y_max -0.001, y_min -0.001.  Bounds: area
     over the loop 2 %, RMS 0.016 (the uncorrected run's 0.0257 fails both), each extent
     within 0.025 as for the compressible first loop."""
     inc = _load_incompressible()

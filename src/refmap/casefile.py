@@ -362,7 +362,7 @@ NumericsSpec = _spec_from_dataclass(
         "dt_fixed": {"gt": 0},
         "phi_max": {"gt": 0},
         "band_capacity": {"ge": 1},
-        "volume_correction": {"ge": 0, "le": 1},
+        "volume_correction": {"ge": 0},
     },
 )
 

@@ -595,24 +595,25 @@ class Model:
     def volume_source(self, derived, dt):
         """The divergence the projection imposes (incompressible fluid), or None.
 
-        With ``Numerics.volume_correction = f > 0`` each solid's volume error is taken out
-        at the rate ``D v = -f ln(J) / dt`` where it is (the top-right corner of each node,
-        where ``D`` is taken, weighted by the solid's blend fraction there): a fraction f
-        per step.  ``J`` drifts because the maps are advected with the node velocities,
-        whose ENO divergence is not the projection's ``D`` (docs/method.md, "Incompressible
-        fluid").  Without an outflow edge the sources must cancel: the fluid takes the
-        opposite volume change, spread in proportion to its fraction (it is the volume the
-        fluid lost to the solids' drift)."""
-        f = self.numerics.volume_correction
-        if f == 0.0 or self.n_solids == 0 or self.projection is None:
+        With ``Numerics.volume_correction = r > 0`` each solid's volume error is taken out
+        at the rate ``D v = -min(r, 1 / dt) ln(J)`` where it is (the top-right corner of each
+        node, where ``D`` is taken, weighted by the solid's blend fraction there): ln J
+        relaxes like exp(-r t).  ``J`` drifts because the maps are advected with the node
+        velocities, whose ENO divergence is not the projection's ``D`` (docs/method.md,
+        "Incompressible fluid").  Without an outflow edge the sources must cancel: the
+        fluid takes the opposite volume change, spread in proportion to its fraction (it is
+        the volume the fluid lost to the solids' drift)."""
+        rate = self.numerics.volume_correction
+        if rate == 0.0 or self.n_solids == 0 or self.projection is None:
             return None
+        rate = jnp.minimum(rate, 1.0 / dt)  # at most the whole error in one step
         # only the material's own nodes (phi < 0 at the corner): the extrapolated band's J
         # is re-made from the interior every step and does not respond to a divergence
         # there (correcting it too made the lid cavity's disc vanish at 32^2 by t = 6)
         inside = derived["phic"][:, 1:, 1:] < 0.0
         ws = derived["ws_c"][:, 1:, 1:]
         logJ = jnp.where(inside, jnp.log(derived["J"][:, 1:, 1:]), 0.0)
-        src = -(f / dt) * jnp.sum(ws * logJ, axis=0)
+        src = -rate * jnp.sum(ws * logJ, axis=0)
         keep = self.projection.keep
         wf = derived["wf_c"][1:, 1:] * keep
         if self._anchor_free is not None:

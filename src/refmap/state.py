@@ -200,10 +200,11 @@ class Numerics:
     ``pressure_rtol``, preconditioned by the exact constant-coefficient FFT/DCT solve,
     ``pressure_preconditioner = "fast"``, or by the diagonal, ``"jacobi"``); lambda_f is
     then unused and the fluid-sound time-step limit is dropped (docs/method.md,
-    "Incompressible fluid").  ``volume_correction`` (incompressible only, default 0.05)
-    takes that fraction of each solid's volume drift ``ln J`` out per step through the
-    projection (``D v = -f ln(J) / dt`` at the material's corners, the fluid taking the
-    opposite; :meth:`refmap.model.Model.volume_source`); 0 keeps ``D v = 0`` exactly.
+    "Incompressible fluid").  ``volume_correction`` (incompressible only, default 10, a rate
+    per unit of the case's time) takes each solid's volume drift ``ln J`` out through the
+    projection (``D v = -min(volume_correction, 1 / dt) ln(J)`` at the material's corners,
+    the fluid taking the opposite; :meth:`refmap.model.Model.volume_source`); 0 keeps
+    ``D v = 0`` exactly.
     """
 
     blur_width: float = 2.0
@@ -235,7 +236,7 @@ class Numerics:
     fluid_model: str = "compressible"
     pressure_rtol: float = 1e-10
     pressure_preconditioner: str = "fast"
-    volume_correction: float = 0.05
+    volume_correction: float = 10.0
 
     def __post_init__(self):
         try:
@@ -289,10 +290,10 @@ class Numerics:
             if not isinstance(v, int) or v < 0:
                 raise ValueError(f"numerics {name} must be an integer >= 0, got {v!r}")
         vc = self.volume_correction
-        if not (isinstance(vc, (int, float)) and 0.0 <= vc <= 1.0):
+        if not (isinstance(vc, (int, float)) and 0.0 <= vc < float("inf")):
             raise ValueError(
-                f"numerics volume_correction (the fraction of each solid's volume error "
-                f"removed per step) must be in [0, 1], got {vc!r}"
+                f"numerics volume_correction (the rate, per unit time, at which a solid's "
+                f"volume drift is taken out) must be a finite number >= 0, got {vc!r}"
             )
         for name in ("dt_max", "dt_fixed"):
             v = getattr(self, name)
