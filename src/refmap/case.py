@@ -97,6 +97,13 @@ class Case:
                 check_boundary(self.boundary, g)
             except ValueError as e:
                 bad(f"boundary: {e}")
+        if self.numerics.fluid_mass == "conserved":
+            from refmap.model import _check_closed
+
+            try:  # a constant fluid mass needs a closed box
+                _check_closed(self.boundary)
+            except ValueError as e:
+                bad(f"boundary: {e}")
         X, Y = g.mesh("node")
         h = g.h
         covered = np.zeros(X.shape, dtype=bool)  # nodes inside some solid

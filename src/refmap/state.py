@@ -205,6 +205,13 @@ class Numerics:
     projection (``D v = -min(volume_correction, 1 / dt) ln(J)`` at the material's corners,
     the fluid taking the opposite; :meth:`refmap.model.Model.volume_source`); 0 keeps
     ``D v = 0`` exactly.
+
+    ``fluid_mass`` (compressible fluid in a closed box): ``"advected"`` (default, the
+    thesis's non-conservative density update: the fluid's mass drifts where the interface
+    moves otherwise than the flow) or ``"conserved"``: after each step the fluid density
+    is shifted, in proportion to the fluid fraction, so that the fluid's mass sum(w_f rho_f)
+    is what it was before the step (docs/method.md, "Fluid mass in a closed box"); refused
+    with an edge through which fluid can flow.
     """
 
     blur_width: float = 2.0
@@ -237,6 +244,7 @@ class Numerics:
     pressure_rtol: float = 1e-10
     pressure_preconditioner: str = "fast"
     volume_correction: float = 10.0
+    fluid_mass: str = "advected"
 
     def __post_init__(self):
         try:
@@ -250,6 +258,7 @@ class Numerics:
             "fluid_model": ("compressible", "incompressible"),
             "pressure_preconditioner": ("fast", "jacobi"),
             "band_force": ("local", "solid"),
+            "fluid_mass": ("advected", "conserved"),
         }
         for name, (a, b) in choices.items():
             value = getattr(self, name)
