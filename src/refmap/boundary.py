@@ -121,12 +121,12 @@ class Boundary:
     ``None`` and never shows them (``to_dict`` writes the four edges only).
     """
 
-    left: Edge = "wall"
-    right: Edge = "wall"
-    bottom: Edge = "wall"
-    top: Edge = "wall"
-    back: Edge | None = None
-    front: Edge | None = None
+    left: Edge | str = "wall"  # a word ("wall", "slip", "outflow", "periodic") or segments
+    right: Edge | str = "wall"
+    bottom: Edge | str = "wall"
+    top: Edge | str = "wall"
+    back: Edge | str | None = None
+    front: Edge | str | None = None
 
     def __post_init__(self):
         if (self.back is None) != (self.front is None):
