@@ -17,7 +17,6 @@ import json
 import os
 import subprocess
 import sys
-
 from pathlib import Path
 
 # one thread for XLA, as in benchmarks/compare_revisions.py
@@ -54,8 +53,13 @@ print("@@" + json.dumps(out))
 
 
 def measure(tree, size, sweeps, reps):
-    env = dict(os.environ, PYTHONPATH=str(tree / "src"), XLA_FLAGS=SINGLE_THREAD,
-               OMP_NUM_THREADS="1", JAX_PLATFORMS="cpu")
+    env = dict(
+        os.environ,
+        PYTHONPATH=str(tree / "src"),
+        XLA_FLAGS=SINGLE_THREAD,
+        OMP_NUM_THREADS="1",
+        JAX_PLATFORMS="cpu",
+    )
     code = f"SIZE={size}\nSWEEPS={sweeps}\nREPS={reps}\n" + _MEASURE
     cmd = ["taskset", "-c", os.environ.get("BENCH_CPU", "1"), sys.executable, "-c", code]
     out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout

@@ -190,6 +190,7 @@ class Neighbours:
 
     def __call__(self, a, fixed):
         lst, ptr = self.tiles.listed, self.tiles.ptr
+
         def edge(rows, d):  # the edge rows (..., cap, t) of the neighbour tiles along d
             return jnp.where(lst[d][:, None], jnp.take(rows, ptr[d], axis=-2), fixed[d])
 
