@@ -36,12 +36,12 @@ f = s.xi - jnp.asarray(model.grid.mesh("node"))
 n = model.numerics
 kw = dict(dx=model.grid.dx, dy=model.grid.dy, band=n.band * model.h,
           periodic=model.bc.periodic, tile=model.band_tile)
-cap = model.band_capacity  # as Model._extend_all passes it: with its tighter first level
+tiles = model.band_capacity  # as Model._extend_all passes it: with its tighter first level
 if getattr(model, "_band_tight", None) is not None:
-    cap = (model._band_tight, cap)
-out = dict(capacity=cap)
+    tiles = (model._band_tight, tiles)
+out = dict(capacity=tiles)
 for name, smooth in (("ext", None), ("ext+smooth", dict(fixed_sweeps=SWEEPS))):
-    for lay, cap in (("tiles", cap), ("grid", None)):
+    for lay, cap in (("tiles", tiles), ("grid", None)):
         fn = jax.jit(lambda f, p, cap=cap, smooth=smooth: extrapolation.extend(
             f, p, capacity=cap, smooth=smooth, **kw))
         jax.block_until_ready(fn(f, s.phi))
