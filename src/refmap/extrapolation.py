@@ -521,17 +521,20 @@ def extend(
     ladder = capacity if isinstance(capacity, (tuple, list)) else (capacity,)
     ladder = sorted({int(min(c, ntx * nty)) for c in ladder})
 
+    # the tiles holding a node to update, found once for the choice of layout and the list
+    flags = jax.vmap(lambda p: narrowband.tile_flags(_unknown(p, band, periodic), tile))(phi)
+
     def compact(cap):
         def run(f, phi):
             return jax.vmap(
-                lambda f_k, phi_k: _extend_tiles(
-                    f_k, phi_k, dx, dy, band, cap, tile, iters, periodic, smooth
+                lambda f_k, phi_k, fl_k: _extend_tiles(
+                    f_k, phi_k, fl_k, dx, dy, band, cap, tile, iters, periodic, smooth
                 )
-            )(f, phi)
+            )(f, phi, flags)
 
         return run
 
-    most = jnp.max(band_tiles(phi, band, tile, periodic))
+    most = jnp.max(jnp.sum(flags, axis=(-2, -1), dtype=jnp.int32))
     if len(ladder) == 1:
         return lax.cond(most <= ladder[0], compact(ladder[0]), dense, f, phi)
     # the first capacity that holds the largest band; past the last one, the full grid
@@ -551,10 +554,11 @@ def band_tiles(phi, band, tile, periodic: Periodic = (False, False)):
     )(phi)
 
 
-def _extend_tiles(f, phi, dx, dy, band, capacity, tile, iters, periodic, smooth):
-    """:func:`extend` for one solid on its listed tiles (f (C, nx, ny), phi (nx, ny))."""
+def _extend_tiles(f, phi, flags, dx, dy, band, capacity, tile, iters, periodic, smooth):
+    """:func:`extend` for one solid on its listed tiles (f (C, nx, ny), phi (nx, ny), the
+    flags (ntx, nty) of the tiles holding a node to update)."""
     nbm = narrowband
-    tiles = nbm.build(_unknown(phi, band, periodic), capacity, tile, periodic)
+    tiles = nbm.build_from_flags(flags, capacity, periodic)
     nb = nbm.Neighbours(tiles)
     never = jnp.int32(iters + 1)
     slot = tiles.slot[:, None, None]

@@ -89,7 +89,11 @@ def _pad_to(a, shape, fill):
 
 def build(mask, capacity: int, tile, periodic: Periodic = (False, False)) -> Tiles:
     """The tiles holding a True node of ``mask`` (nx, ny), in index order."""
-    flags = tile_flags(mask, tile)
+    return build_from_flags(tile_flags(mask, tile), capacity, periodic)
+
+
+def build_from_flags(flags, capacity: int, periodic: Periodic = (False, False)) -> Tiles:
+    """:func:`build` from the tile flags (ntx, nty) of :func:`tile_flags`."""
     ntx, nty = flags.shape
     m = flags.reshape(-1)
     count = jnp.sum(m, dtype=jnp.int32)
@@ -214,6 +218,7 @@ __all__ = [
     "Neighbours",
     "Tiles",
     "build",
+    "build_from_flags",
     "gather",
     "halos",
     "interior",
