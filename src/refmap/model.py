@@ -207,7 +207,8 @@ class Model:
         grid cannot be tiled (:func:`refmap.narrowband.tile_shape`), or with
         ``band_sweeps = "auto"`` when that is more than ``BAND_TILE_FRACTION`` of the
         grid's tiles (the full-grid sweeps are then the cheaper).  A band that outgrows
-        it makes the step fall back on the full-grid sweeps (same result, full cost)."""
+        it makes the step fall back on the full-grid sweeps (same result, full cost).  A
+        tighter capacity, ``BAND_TIGHT`` times those tiles plus 8, is tried first."""
         n = self.numerics
         self.band_tile = narrowband.tile_shape(self.grid.shape(), self.bc.periodic)
         self._band_tight = None
