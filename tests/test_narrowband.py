@@ -71,6 +71,31 @@ def test_tiles_equal_full_grid_sweeps(shape, periodic, smooth):
     np.testing.assert_array_equal(tiles[outside], f[outside])
 
 
+def test_capacity_ladder_takes_the_first_that_fits():
+    """A tuple of capacities: the smallest that holds every band is swept (same result as
+    the full grid), and when none does the full-grid sweeps run (bitwise)."""
+    g, phis, f = _fields(100, 70)
+    band = 6 * g.h
+    tile = narrowband.tile_shape((100, 70))
+    most = int(np.asarray(band_tiles(phis, band, tile)).max())
+    sm = SMOOTH["fixed"]
+
+    def run(capacity):
+        return np.asarray(
+            jax.jit(lambda f, p: extend(f, p, g.dx, g.dy, band, capacity, smooth=sm, tile=tile))(
+                f, phis
+            )
+        )
+
+    dense = run(None)
+    scale = np.abs(dense).max()
+    exact = run(most)
+    for ladder in ((most, most + 5), (most - 1, most), (most - 3, most - 1, most + 4)):
+        np.testing.assert_array_equal(run(ladder), exact)  # the same tiles, whatever slots
+    assert np.abs(exact - dense).max() <= 1e-14 * scale
+    np.testing.assert_array_equal(run((most - 2, most - 1)), dense)
+
+
 def test_tile_shape_on_periodic_axes():
     assert narrowband.tile_shape((100, 70)) == (16, 16)
     assert narrowband.tile_shape((96, 72), (True, True)) == (16, 18)
@@ -114,8 +139,10 @@ def test_auto_tiles_only_a_band_that_covers_little_of_the_grid():
     assert Numerics().band_sweeps == "auto"
     grid = Grid(256, 256)
     disc = Solid(Disc((0.0, 0.0), 0.1), NeoHookean(G=1.0, kappa=1.0))
-    caps = {m: Model(grid, (disc,), numerics=Numerics(band_sweeps=m)).band_capacity
-            for m in ("auto", "band", "grid")}
+    caps = {
+        m: Model(grid, (disc,), numerics=Numerics(band_sweeps=m)).band_capacity
+        for m in ("auto", "band", "grid")
+    }
     assert caps["grid"] is None
     assert caps["auto"] == caps["band"] is not None
     assert caps["auto"] <= BAND_TILE_FRACTION * 16 * 16

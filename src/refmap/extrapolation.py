@@ -474,7 +474,7 @@ def extend(
     dx,
     dy,
     band,
-    capacity: int | None = None,
+    capacity: int | tuple[int, ...] | None = None,
     iters: int | None = None,
     periodic: Periodic = (False, False),
     smooth: dict | None = None,
@@ -492,9 +492,12 @@ def extend(
     :func:`refmap.narrowband.tile_shape`) that hold a node to update (``phi <= band``
     outside the solid's valid-gradient interior), at most ``capacity`` per solid, are
     gathered once, the extrapolation and smoothing sweep them, and the result is scattered
-    back; the arithmetic is the same node for node, so the result is bitwise that of the
-    full-grid sweeps.  If any solid's band covers more than ``capacity`` tiles, this call
-    falls back on the full-grid sweeps (same result, full cost).
+    back; the arithmetic is the same node for node, so the result is that of the
+    full-grid sweeps (to the last bit or so: XLA may fuse the two layouts differently).  If
+    any solid's band covers more than ``capacity`` tiles, this call falls back on the
+    full-grid sweeps (same result, full cost).  A tuple of capacities is a ladder: the
+    smallest one that holds every solid's band is used (the work is proportional to it),
+    the full grid when none does.
     """
     f = jnp.asarray(f)
     phi = jnp.asarray(phi)
@@ -515,17 +518,28 @@ def extend(
     if capacity is None or tile is None or f.shape[0] == 0:
         return dense(f, phi)
     ntx, nty = narrowband.n_tiles(phi.shape[-2:], tile)
-    capacity = int(min(capacity, ntx * nty))
+    ladder = capacity if isinstance(capacity, (tuple, list)) else (capacity,)
+    ladder = sorted({int(min(c, ntx * nty)) for c in ladder})
 
-    def compact(f, phi):
-        return jax.vmap(
-            lambda f_k, phi_k: _extend_tiles(
-                f_k, phi_k, dx, dy, band, capacity, tile, iters, periodic, smooth
-            )
-        )(f, phi)
+    # the tiles holding a node to update, found once for the choice of layout and the list
+    flags = jax.vmap(lambda p: narrowband.tile_flags(_unknown(p, band, periodic), tile))(phi)
 
-    counts = band_tiles(phi, band, tile, periodic)
-    return lax.cond(jnp.all(counts <= capacity), compact, dense, f, phi)
+    def compact(cap):
+        def run(f, phi):
+            return jax.vmap(
+                lambda f_k, phi_k, fl_k: _extend_tiles(
+                    f_k, phi_k, fl_k, dx, dy, band, cap, tile, iters, periodic, smooth
+                )
+            )(f, phi, flags)
+
+        return run
+
+    most = jnp.max(jnp.sum(flags, axis=(-2, -1), dtype=jnp.int32))
+    if len(ladder) == 1:
+        return lax.cond(most <= ladder[0], compact(ladder[0]), dense, f, phi)
+    # the first capacity that holds the largest band; past the last one, the full grid
+    level = jnp.sum(jnp.asarray(ladder, dtype=jnp.int32) < most, dtype=jnp.int32)
+    return lax.switch(level, [compact(c) for c in ladder] + [dense], f, phi)
 
 
 def _unknown(phi, band, periodic):
@@ -540,10 +554,11 @@ def band_tiles(phi, band, tile, periodic: Periodic = (False, False)):
     )(phi)
 
 
-def _extend_tiles(f, phi, dx, dy, band, capacity, tile, iters, periodic, smooth):
-    """:func:`extend` for one solid on its listed tiles (f (C, nx, ny), phi (nx, ny))."""
+def _extend_tiles(f, phi, flags, dx, dy, band, capacity, tile, iters, periodic, smooth):
+    """:func:`extend` for one solid on its listed tiles (f (C, nx, ny), phi (nx, ny), the
+    flags (ntx, nty) of the tiles holding a node to update)."""
     nbm = narrowband
-    tiles = nbm.build(_unknown(phi, band, periodic), capacity, tile, periodic)
+    tiles = nbm.build_from_flags(flags, capacity, periodic)
     nb = nbm.Neighbours(tiles)
     never = jnp.int32(iters + 1)
     slot = tiles.slot[:, None, None]

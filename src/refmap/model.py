@@ -54,6 +54,9 @@ from refmap.viscosity import ImplicitViscosity
 # fraction of the grid's; a tile sweep costs 1.8-2.5 times a full-grid sweep per node
 # (rotor, 128^2-512^2, docs/benchmarks.md), so the break-even lies at 0.40-0.57
 BAND_TILE_FRACTION = 0.35
+# a first, tighter band capacity (this times the tiles at t = 0, plus 8) tried before
+# Numerics.band_capacity's: the band work is proportional to the capacity
+BAND_TIGHT = 1.25
 
 LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max", "fixed")
 
@@ -206,9 +209,11 @@ class Model:
         grid cannot be tiled (:func:`refmap.narrowband.tile_shape`), or with
         ``band_sweeps = "auto"`` when that is more than ``BAND_TILE_FRACTION`` of the
         grid's tiles (the full-grid sweeps are then the cheaper).  A band that outgrows
-        it makes the step fall back on the full-grid sweeps (same result, full cost)."""
+        it makes the step fall back on the full-grid sweeps (same result, full cost).  A
+        tighter capacity, ``BAND_TIGHT`` times those tiles plus 8, is tried first."""
         n = self.numerics
         self.band_tile = narrowband.tile_shape(self.grid.shape(), self.bc.periodic)
+        self._band_tight = None
         if n.band_sweeps == "grid" or not self.solids or self.band_tile is None:
             return None
         shift = n.advected_band * self.h
@@ -220,6 +225,7 @@ class Model:
         capacity = min(int(math.ceil(n.band_capacity * counts.max())) + 8, ntx * nty)
         if n.band_sweeps == "auto" and capacity > BAND_TILE_FRACTION * ntx * nty:
             return None
+        self._band_tight = min(int(math.ceil(BAND_TIGHT * counts.max())) + 8, capacity)
         return capacity
 
     # ------------------------------------------------------------------ helpers
@@ -322,7 +328,9 @@ class Model:
             self.grid.dx,
             self.grid.dy,
             n.band * self.h - shift,
-            capacity=self.band_capacity,
+            capacity=self.band_capacity
+            if self.band_capacity is None or self._band_tight is None
+            else (self._band_tight, self.band_capacity),
             tile=self.band_tile,
             periodic=self.bc.periodic,
             smooth=smooth,

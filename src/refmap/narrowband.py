@@ -89,7 +89,11 @@ def _pad_to(a, shape, fill):
 
 def build(mask, capacity: int, tile, periodic: Periodic = (False, False)) -> Tiles:
     """The tiles holding a True node of ``mask`` (nx, ny), in index order."""
-    flags = tile_flags(mask, tile)
+    return build_from_flags(tile_flags(mask, tile), capacity, periodic)
+
+
+def build_from_flags(flags, capacity: int, periodic: Periodic = (False, False)) -> Tiles:
+    """:func:`build` from the tile flags (ntx, nty) of :func:`tile_flags`."""
     ntx, nty = flags.shape
     m = flags.reshape(-1)
     count = jnp.sum(m, dtype=jnp.int32)
@@ -190,6 +194,7 @@ class Neighbours:
 
     def __call__(self, a, fixed):
         lst, ptr = self.tiles.listed, self.tiles.ptr
+
         def edge(rows, d):  # the edge rows (..., cap, t) of the neighbour tiles along d
             return jnp.where(lst[d][:, None], jnp.take(rows, ptr[d], axis=-2), fixed[d])
 
@@ -197,11 +202,15 @@ class Neighbours:
         hxp = edge(a[..., 0, :], 1)
         hym = edge(a[..., :, -1], 2)
         hyp = edge(a[..., :, 0], 3)
-        xm = jnp.concatenate([hxm[..., None, :], a[..., :-1, :]], axis=-2)
-        xp = jnp.concatenate([a[..., 1:, :], hxp[..., None, :]], axis=-2)
-        ym = jnp.concatenate([hym[..., None], a[..., :-1]], axis=-1)
-        yp = jnp.concatenate([a[..., 1:], hyp[..., None]], axis=-1)
-        return xm, xp, ym, yp
+        # the tile with one ghost row, built apart (an optimisation barrier keeps XLA from
+        # fusing the concatenation into the stencil, which would then not vectorise)
+        p = jnp.concatenate([hxm[..., None, :], a, hxp[..., None, :]], axis=-2)
+        pad = [(0, 0, 0)] * (hym.ndim - 1) + [(1, 1, 0)]
+        hym = lax.pad(hym, jnp.zeros((), hym.dtype), pad)
+        hyp = lax.pad(hyp, jnp.zeros((), hyp.dtype), pad)
+        p = jnp.concatenate([hym[..., None], p, hyp[..., None]], axis=-1)
+        p = lax.optimization_barrier(p)
+        return stencil_neighbours(p)
 
 
 __all__ = [
@@ -209,6 +218,7 @@ __all__ = [
     "Neighbours",
     "Tiles",
     "build",
+    "build_from_flags",
     "gather",
     "halos",
     "interior",
