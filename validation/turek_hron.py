@@ -908,6 +908,8 @@ def table(out=DEFAULT_OUT):
         }[r["case"]]
         if r.get("fluid") == "incompressible":
             res += ", incompressible"
+        if r.get("mirror"):
+            res += ", body mirrored"
         for q in qs:
             lines.append(
                 f"| {r['case'].upper()} | {res} | {q} | {r[q]:.5g} | {r['ref_' + q]:.6g} | "
