@@ -64,7 +64,14 @@ import numpy as np
 import refmap  # noqa: F401  (float64)
 from refmap.anchors import RegionAnchor
 from refmap.boundary import Boundary, BoundaryConditions, Segment
-from refmap.forces import box_mask, held_force, region_force
+from refmap.forces import (
+    anchor_weight,
+    box_mask,
+    held_force,
+    pressure_force_density,
+    projection_pressure,
+    region_force,
+)
 from refmap.geometry import Disc, Rectangle
 from refmap.grid import Grid
 from refmap.materials import StVenantKirchhoff
@@ -90,9 +97,13 @@ REFERENCE = {
     "csm1": dict(ux=-7.18767e-3, uy=-66.1023e-3),
     "csm2": dict(ux=-0.469000e-3, uy=-16.9739e-3),
     "cfd1": dict(drag=14.2929, lift=1.11905),
+    # CFD2 (Ubar = 1, Re 100): Turek & Hron (2006), table "CFD2", as quoted in
+    # /work/shared/VALIDATION.md (drag 136.700, lift 10.5343)
+    "cfd2": dict(drag=136.700, lift=10.5343),
     "fsi1": dict(ux=2.270493e-5, uy=8.208773e-4, drag=14.29426, lift=0.7637460),
 }
-MU_S = {"csm1": 0.5e6, "csm2": 2.0e6, "fsi1": 0.5e6, "cfd1": 0.5e6}
+MU_S = {"csm1": 0.5e6, "csm2": 2.0e6, "fsi1": 0.5e6, "cfd1": 0.5e6, "cfd2": 0.5e6}
+UBAR = {"cfd1": 0.2, "cfd2": 1.0, "fsi1": 0.2}
 
 DEFAULT_OUT = Path("/work/runs/th")
 # fluid compression of the channel runs (refmap.state.Numerics.compression; --compression)
@@ -455,8 +466,8 @@ class HeldDensityModel(Model):
 
 
 # --------------------------------------------------------------------------- channel
-def channel_boundary():
-    inflow = Segment("velocity", velocity=(1.5 * 0.2, 0.0), profile="parabolic", ramp=2.0)
+def channel_boundary(ubar: float = 0.2):
+    inflow = Segment("velocity", velocity=(1.5 * ubar, 0.0), profile="parabolic", ramp=2.0)
     return Boundary(
         left=(inflow,),
         right=(Segment("outflow"),),
@@ -473,6 +484,54 @@ def channel_dt(h, c_f, nu_long, safety=0.7):
     return safety * min(2.0 * nu_long / (nu_long**2 * K + c_f**2), h / (c_f + 0.3))
 
 
+def incompressible_dt(h, rho_f, eta, ubar, safety=0.5):
+    """Step of the incompressible channel: ``safety * min(h^2 rho / (4 eta), h / U)`` with
+    U = 2 x 1.5 Ubar, twice the peak inflow speed (a bound on the speed round the body)."""
+    return safety * min(h * h * rho_f / (4.0 * eta), h / (3.0 * ubar))
+
+
+def make_incompressible_channel(
+    ny: int, ubar: float = 0.2, mu_f: float = 1.0, mirror: bool = False
+):
+    """Model and params of the channel with the rigid flag and an incompressible fluid
+    (``Numerics(fluid_model="incompressible")``): rho_f = 1000 (constant: no
+    HeldDensityModel, no bulk viscosity), mu_f = 1 (eta = 2 mu_f), no extra viscosity; the
+    outflow edge is the projection's (p = 0 on its row); dt from :func:`incompressible_dt`.
+    ``mirror``: the body reflected about the channel's mid-line (centre y = 0.21), whose
+    exact lift is minus the benchmark's; the grid's nodes are symmetric about the mid-line,
+    so the held nodes are the mirror image too and lift + mirrored lift measures the
+    scheme's own up/down bias.
+    """
+    ax, bx, ay, by = CHANNEL
+    h = (by - ay) / ny
+    nx = int(round((bx - ax) / h))
+    grid = Grid(nx, ny, ax, bx, ay, by)
+    rho_f = 1000.0
+    eta = 2.0 * mu_f
+    # lambda_f is unused by the incompressible model (rho_f stays rho0)
+    fluid = FluidParams(rho0=rho_f, lambda_f=rho_f * 4.0, eta=eta, extra_viscosity=0.0)
+    dt = incompressible_dt(h, rho_f, eta, ubar)
+    law = svk(MU_S["cfd1"], RHO_S)
+    body = BODY
+    if mirror:
+        yc = CHANNEL[2] + CHANNEL[3] - CYL.center[1]
+        body = Disc(center=(CYL.center[0], yc), radius=CYL.radius) | Rectangle(
+            center=(FLAG.center[0], yc), half_size=FLAG.half_size
+        )
+    solid = Solid(shape=body, law=law, anchor=RegionAnchor(body), name="body")
+    model = Model(
+        grid,
+        (solid,),
+        channel_boundary(ubar),
+        Numerics(fluid_model="incompressible", dt_fixed=dt),
+    )
+    params = Params(fluid=fluid, laws=(law,), gravity=(0.0, 0.0))
+    info = dict(
+        ny=ny, nx=nx, h=h, nt=THICK / h, dt=dt, ubar=ubar, fluid="incompressible", mirror=mirror
+    )
+    return model, params, info
+
+
 def make_channel(
     ny: int,
     rigid: bool,
@@ -487,6 +546,7 @@ def make_channel(
     Fluid: rho_f = 1000, mu_f = 1 (eta = 2 mu_f), no extra viscosity (so the fluid's shear
     viscosity is exactly mu_f), sound speed c_f (Mach Ubar / c_f), and a bulk viscosity
     with (eta + zeta) / rho_f = nu_factor c_f h for its sound (see fluid_bulk_viscosity).
+    The incompressible fluid: :func:`make_incompressible_channel`.
     """
     ax, bx, ay, by = CHANNEL
     h = (by - ay) / ny
@@ -538,8 +598,13 @@ def make_channel(
     return model, params, info
 
 
+BOX = (0.1, 0.7, 0.1, 0.3)
+
+
 def _forces_fn(model, params):
-    box = box_mask(model.grid, (0.1, 0.7, 0.1, 0.3))
+    box = box_mask(model.grid, BOX)
+    if model.projection is not None:
+        return _forces_fn_incompressible(model, params, box)
 
     @jax.jit
     def fn(s):
@@ -548,6 +613,25 @@ def _forces_fn(model, params):
         fb = region_force(model, s, params, box, d)
         u, res = probe(model, s)
         return fh, fb, u, jnp.max(jnp.abs(s.rho_f / params.fluid.rho0 - 1.0))
+
+    return fn
+
+
+def _forces_fn_incompressible(model, params, box):
+    """Held and box force with the projection pressure of the next step (the run's dt);
+    the last entry is the held force's pressure part (sum_held -G p dA) instead of the
+    density change (rho_f is constant)."""
+    held = anchor_weight(model, 0)
+
+    @jax.jit
+    def fn(s):
+        d = model.derived(s, params)
+        p = projection_pressure(model, s, params)
+        fh = held_force(model, s, params, 0, d, pressure=p)
+        fb = region_force(model, s, params, box, d, pressure=p)
+        fp = jnp.sum(held[None] * pressure_force_density(model, p), axis=(1, 2))
+        u, res = probe(model, s)
+        return fh, fb, u, fp * model.grid.cell_area
 
     return fn
 
@@ -577,11 +661,21 @@ def run_channel(
         steps += int(st["steps"])
         fh, fb, u, drho = (np.asarray(a) for a in measure(state))
         wall = time.time() - t0
-        row = [t, *fh, *fb, *u, float(drho), steps, wall]
+        if drho.ndim:  # incompressible: the held force's pressure part (drag, lift)
+            row = [t, *fh, *fb, *u, *(float(x) for x in drho), steps, wall]
+        else:
+            row = [t, *fh, *fb, *u, float(drho), steps, wall]
         rows.append(row)
         if writer is not None:
             writer.writerow([f"{x:.6e}" if isinstance(x, float) else x for x in row])
-        if verbose:
+        if verbose and drho.ndim:
+            print(
+                f"{tag} t={t:.3f} drag={fh[0]:.4f} lift={fh[1]:.4f} (box {fb[0]:.4f} {fb[1]:.4f};"
+                f" pressure part {drho[0]:.4f} {drho[1]:.4f}) dt={float(st['dt']):.2e} "
+                f"steps={steps} wall={wall:.0f}s",
+                flush=True,
+            )
+        elif verbose:
             print(
                 f"{tag} t={t:.3f} drag={fh[0]:.4f} lift={fh[1]:.4f} (box {fb[0]:.4f} {fb[1]:.4f}) "
                 f"ux={u[0]:.3e} uy={u[1]:.3e} max|drho|={drho:.3f} dt={float(st['dt']):.2e} "
@@ -605,6 +699,59 @@ HEADER = [
     "steps",
     "wall_s",
 ]
+HEADER_INC = HEADER[:7] + ["drag_pressure", "lift_pressure", "steps", "wall_s"]
+
+
+def run_cfd(
+    case: str,
+    ny: int,
+    t_end: float,
+    avg: float = 1.0,
+    chunk: float = 0.1,
+    out=DEFAULT_OUT,
+    keep_state=True,
+    mirror: bool = False,
+):
+    """CFD1 / CFD2 (rigid flag) with the incompressible fluid; drag and lift averaged over
+    the last ``avg`` seconds (no sound: the flow is steady, the range says how steady).
+    ``mirror``: the body reflected about the mid-line (see make_incompressible_channel;
+    the reference lift is then minus the benchmark's)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    model, params, info = make_incompressible_channel(ny, ubar=UBAR[case], mirror=mirror)
+    tag = f"{case}_ny{ny}_inc" + ("_mirror" if mirror else "")
+    f, w = _writer(out / f"{tag}.csv", HEADER_INC)
+    t0 = time.time()
+    state, rows, steps = run_channel(
+        model, params, model.initial_state(params), t_end, chunk, tag, out, writer=w
+    )
+    f.close()
+    if keep_state:
+        save_state(out / f"{tag}_state.npz", state)
+    last = rows[-1]
+    ref = dict(REFERENCE[case])
+    if mirror:
+        ref["lift"] = -ref["lift"]
+    cols = dict(drag=1, lift=2, drag_box=3, lift_box=4, drag_pressure=7, lift_pressure=8)
+    result = dict(
+        info,
+        case=case,
+        t=last[0],
+        avg_window=avg,
+        steps=steps,
+        wall_s=time.time() - t0,
+        ms_per_step=1e3 * (time.time() - t0) / max(steps, 1),
+        **{q: _mean(rows, c, avg) for q, c in cols.items()},
+        **{f"{q}_range": _change(rows, c, avg) for q, c in cols.items()},
+        drag_last=last[1],
+        lift_last=last[2],
+        ref_drag=ref["drag"],
+        ref_lift=ref["lift"],
+    )
+    result["err_drag"] = (result["drag"] - ref["drag"]) / ref["drag"]
+    result["err_lift"] = (result["lift"] - ref["lift"]) / ref["lift"]
+    (out / f"{tag}.json").write_text(json.dumps(result, indent=1))
+    return result
 
 
 def run_cfd1(
@@ -756,8 +903,13 @@ def table(out=DEFAULT_OUT):
             "csm1": ("ux", "uy"),
             "csm2": ("ux", "uy"),
             "cfd1": ("drag", "lift"),
+            "cfd2": ("drag", "lift"),
             "fsi1": ("ux", "uy", "drag", "lift"),
         }[r["case"]]
+        if r.get("fluid") == "incompressible":
+            res += ", incompressible"
+        if r.get("mirror"):
+            res += ", body mirrored"
         for q in qs:
             lines.append(
                 f"| {r['case'].upper()} | {res} | {q} | {r[q]:.5g} | {r['ref_' + q]:.6g} | "
@@ -867,7 +1019,7 @@ def plot(out=DEFAULT_OUT, img=Path(__file__).resolve().parents[1] / "docs" / "im
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("case", choices=["csm1", "csm2", "cfd1", "fsi1", "table", "plot"])
+    ap.add_argument("case", choices=["csm1", "csm2", "cfd1", "cfd2", "fsi1", "table", "plot"])
     ap.add_argument("--nt", type=int, default=4, help="CSM: cells across the 0.02-thick flag")
     ap.add_argument("--ny", type=int, default=41, help="channel: cells across the 0.41 height")
     ap.add_argument(
@@ -889,6 +1041,18 @@ def main(argv=None):
         default="centred",
         help="channel runs: fluid compression (Numerics.compression)",
     )
+    ap.add_argument(
+        "--fluid",
+        choices=["compressible", "incompressible"],
+        default="compressible",
+        help="cfd1/cfd2: fluid model (cfd2 is incompressible only: Mach 0.5 at c_f = 2)",
+    )
+    ap.add_argument(
+        "--avg", type=float, default=1.0, help="incompressible cfd: averaging window (s)"
+    )
+    ap.add_argument(
+        "--mirror", action="store_true", help="incompressible cfd: body mirrored (y -> H - y)"
+    )
     a = ap.parse_args(argv)
     global COMPRESSION
     COMPRESSION = a.compression
@@ -902,6 +1066,10 @@ def main(argv=None):
             gamma_factor=a.gamma_factor,
             damp_all=a.damp_all,
         )
+    elif a.case in ("cfd1", "cfd2") and a.fluid == "incompressible":
+        r = run_cfd(a.case, a.ny, t_end=a.t_end or 8.0, avg=a.avg, out=a.out, mirror=a.mirror)
+    elif a.case == "cfd2":
+        raise SystemExit("cfd2 runs with --fluid incompressible only (Mach 0.5 at c_f = 2)")
     elif a.case == "cfd1":
         r = run_cfd1(a.ny, t_end=a.t_end or 8.0, out=a.out)
     elif a.case == "fsi1":

@@ -28,6 +28,20 @@ momentum flux; the difference from F_held is the rate of change of the momentum 
 free inside the box, which is zero in a steady state.  Comparing the two is a check that the
 state is steady.  Everything here repeats the model's own terms, so the balance is exact to
 round-off at every step (tested against :meth:`Model.step`).
+
+Incompressible fluid (``Numerics(fluid_model="incompressible")``).  The fluid pressure is
+not in the blended stress: the projection applies ``v = v* - dt rho^-1 G p`` after the
+predictor ``v* = v + dt a`` (:mod:`refmap.projection`; ``G = -B^T`` the backward
+difference), and an anchor's nodes take no correction (weight ``1 - w_anchor``).  The
+momentum the clamp removes from a held node is therefore ``rho a - G p`` per unit area:
+the pressure force ``-G p dA`` (not divided by rho) is added to every node of the region.
+``pressure`` is the projection pressure of the step from ``state``
+(:func:`projection_pressure`, i.e. ``Model.step(..., return_pressure=True)``); when it is
+not given for an incompressible model it is computed with the model's own time step
+(``Numerics.dt_fixed`` in the validation runs).  Inside a held region ``p`` is not fixed
+by the projection (no free velocity in its continuity rows), but those rows contribute
+nothing to a sum of ``G p`` over the region (a constant in ``B^T``'s row telescopes), so
+the region force is well defined.
 """
 
 from __future__ import annotations
@@ -57,12 +71,36 @@ def acceleration(model, state, params, derived=None):
     return acc, rho
 
 
-def region_force(model, state, params, weight, derived=None):
-    """``sum weight * rho * a * dA`` (2,): the net force on the nodes selected by ``weight``
-    (a 0/1 node mask or a weight field, (nx, ny))."""
+def projection_pressure(model, state, params, dt=None):
+    """The projection pressure (nx, ny) of the step of size ``dt`` (default: the model's
+    own, :meth:`Model.time_step`) from ``state``; incompressible models only."""
+    if model.projection is None:
+        raise ValueError("projection_pressure: the model's fluid is not incompressible")
+    if dt is None:
+        dt, _ = model.time_step(state, params)
+    return model.step(state, params, dt, return_pressure=True)
+
+
+def pressure_force_density(model, pressure):
+    """``-G p`` (2, nx, ny): the projection pressure's force per unit area on each node."""
+    return model.projection.BT(pressure)
+
+
+def region_force(model, state, params, weight, derived=None, pressure=None):
+    """``sum weight * (rho * a - G p) * dA`` (2,): the net force on the nodes selected by
+    ``weight`` (a 0/1 node mask or a weight field, (nx, ny)).  The projection pressure's
+    term ``-G p`` only for an incompressible model (``pressure``: see the module notes;
+    computed with the model's time step when None)."""
     acc, rho = acceleration(model, state, params, derived)
     w = jnp.asarray(weight)
-    return jnp.sum(w[None] * rho[None] * acc, axis=(-2, -1)) * model.grid.cell_area
+    f = rho[None] * acc
+    if model.projection is not None:
+        if pressure is None:
+            pressure = projection_pressure(model, state, params)
+        f = f + pressure_force_density(model, pressure)
+    elif pressure is not None:
+        raise ValueError("region_force: a pressure was given but the fluid is compressible")
+    return jnp.sum(w[None] * f, axis=(-2, -1)) * model.grid.cell_area
 
 
 def anchor_weight(model, k: int = 0):
@@ -73,11 +111,11 @@ def anchor_weight(model, k: int = 0):
     return anchor.weight(model.grid)
 
 
-def held_force(model, state, params, k: int = 0, derived=None):
+def held_force(model, state, params, k: int = 0, derived=None, pressure=None):
     """Force (2,) the surroundings exert on the nodes held by solid k's region anchor:
     minus the anchor's reaction; the drag (x) and lift (y) on the held body and whatever
-    hangs on it, once the flow is steady."""
-    return region_force(model, state, params, anchor_weight(model, k), derived)
+    hangs on it, once the flow is steady.  ``pressure``: see :func:`region_force`."""
+    return region_force(model, state, params, anchor_weight(model, k), derived, pressure)
 
 
 def box_mask(grid, box):
@@ -87,4 +125,12 @@ def box_mask(grid, box):
     return ((X > x0) & (X < x1) & (Y > y0) & (Y < y1)).astype(float)
 
 
-__all__ = ["acceleration", "region_force", "anchor_weight", "held_force", "box_mask"]
+__all__ = [
+    "acceleration",
+    "projection_pressure",
+    "pressure_force_density",
+    "region_force",
+    "anchor_weight",
+    "held_force",
+    "box_mask",
+]
