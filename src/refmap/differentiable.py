@@ -25,6 +25,9 @@ Pieces:
   ``checkpoint="sqrt"`` (default) the steps are grouped in ``ceil(sqrt(n))`` chunks, the
   chunks and the steps are rematerialised (``jax.checkpoint``), so the memory of the
   backward pass grows like ``sqrt(n)`` states instead of ``n`` steps' intermediates;
+  ``checkpoint="binomial"`` stores at most ``snapshots`` states by Griewank and Walther's
+  binomial (revolve) schedule (:func:`binomial_schedule`) in a custom VJP, re-running
+  :func:`binomial_cost` steps;
 * :func:`differentiable_model` -- a copy of a model whose map smoothing uses fixed sweeps
   (``Numerics.fixed_smooth_sweeps``; :func:`rollout` applies it itself);
 * :func:`with_traced` -- a copy of a model in which static parts of the case take traced
