@@ -18,6 +18,7 @@ every node contributes, and a linear loss keeps round-off in the FD quotient sma
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 
@@ -279,16 +280,15 @@ def test_nested_chunks():
         rd.nested_chunks(10, 0)
 
 
-def _binomial_dp(n, c, memo={}):
+@functools.cache
+def _binomial_dp(n, c):
     """Brute-force optimum of the binomial schedule's re-run steps (j + F(n - j, c - 1) +
     F(j, c) over every first checkpoint j; one snapshot: re-run from it)."""
     if n <= 1:
         return 0
     if c == 1:
         return n * (n - 1) // 2
-    if (n, c) not in memo:
-        memo[n, c] = min(j + _binomial_dp(n - j, c - 1) + _binomial_dp(j, c) for j in range(1, n))
-    return memo[n, c]
+    return min(j + _binomial_dp(n - j, c - 1) + _binomial_dp(j, c) for j in range(1, n))
 
 
 def test_binomial_schedule_is_optimal_and_consistent():
