@@ -388,7 +388,7 @@ def rollout(
             ignored by the other strategies): binomial checkpointing (Griewank and
             Walther's revolve, :func:`binomial_schedule`) in a custom VJP; the backward pass
             holds ``snapshots + 1`` states and one step's backward, and re-runs
-            :func:`binomial_cost` steps (e.g. 10 000 steps, 13 snapshots: 5.5 runs).
+            :func:`binomial_cost` steps (e.g. 10 000 steps, 13 snapshots: 4.8 runs).
 
     Returns:
         :class:`RolloutResult` ``(state, loss, observations)``.
