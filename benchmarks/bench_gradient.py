@@ -4,10 +4,12 @@ For each grid size and step count: the forward run (``refmap.differentiable.roll
 rematerialisation, loss only) and the gradient of the loss with respect to the parameters
 and the initial velocity, with ``checkpoint="sqrt"`` (nested scan, ~sqrt(n) chunks, every
 chunk and step rematerialised), ``"nested"`` with k levels (named ``nested3``,
-``nested4``, ...: k nested scans of ~n^(1/k) steps), ``"step"`` and ``None`` (no
-rematerialisation).  The ``states`` column is the number of states the strategy's
+``nested4``, ...: k nested scans of ~n^(1/k) steps), ``"binomial"`` with s snapshots
+(named ``binomial13``, ...: Griewank's revolve schedule in a custom VJP), ``"step"`` and
+``None`` (no rematerialisation).  The ``states`` column is the number of states the strategy's
 backward pass keeps by construction (``"sqrt"``: outer plus inner scan lengths;
-``nested``: the sum of its scan lengths; ``"step"``: n).
+``nested``: the sum of its scan lengths; ``binomial``: s + 1, the snapshots and the state
+before the last step; ``"step"``: n).
 
 * Memory: the compiled executables' ``memory_analysis()`` (XLA's temporary buffers plus
   arguments and outputs), so no run is needed: the 10000-step figures are exact for what
@@ -23,7 +25,7 @@ fixed smoothing sweeps), step size the adaptive one of the initial state, held c
     python benchmarks/bench_gradient.py                  # 64^2 and 128^2, 100/1000/10000
     python benchmarks/bench_gradient.py --sizes 64 --steps 100 1000 --time-steps 100
     python benchmarks/bench_gradient.py --sizes 128 --steps 10000 --time-steps 0 \
-        --strategies sqrt nested3 nested4 nested6                 # memory only
+        --strategies sqrt nested3 nested4 nested6 binomial13      # memory only
 
 Targets (issue 13): gradient time <= 10x forward, memory <= 4x forward at 10000 steps, 128^2.
 """
@@ -41,18 +43,22 @@ import refmap  # noqa: F401
 from refmap import differentiable as rd
 from refmap.scenarios import get_case
 
-STRATEGIES = ("sqrt", "nested3", "nested4", "step", "none")
+STRATEGIES = ("sqrt", "nested3", "nested4", "binomial13", "step", "none")
 
 
 def _strategy(name):
-    """``(checkpoint, levels)`` of a strategy name: sqrt, step, none, nestedK."""
+    """``(checkpoint, levels or snapshots)`` of a strategy name: sqrt, step, none, nestedK,
+    binomialS."""
     if name in (None, "none"):
         return None, 3
     if name in ("sqrt", "step"):
         return name, 3
     if name.startswith("nested") and name[6:].isdigit() and int(name[6:]) >= 1:
         return "nested", int(name[6:])
-    raise ValueError(f"unknown strategy {name!r}; use sqrt, step, none or nestedK (K >= 1)")
+    if name.startswith("binomial") and name[8:].isdigit() and int(name[8:]) >= 1:
+        return "binomial", int(name[8:])
+    raise ValueError(f"unknown strategy {name!r}; use sqrt, step, none, nestedK or binomialS "
+                     "(K, S >= 1)")
 
 
 def _states(name, steps):
@@ -63,6 +69,8 @@ def _states(name, steps):
         return n_full + chunk  # the outer carries, then one chunk's inner carries
     if ck == "nested":
         return sum(rd.nested_chunks(steps, levels))
+    if ck == "binomial":
+        return levels + 1
     return steps if ck == "step" else 0
 
 
@@ -110,7 +118,7 @@ def bench(n, steps, time_steps, reps, strategies):
 
         def f(params, v, ck=ck, levels=levels):
             return rd.rollout(model, state.replace(v=v), params, steps, dt, loss=loss,
-                              checkpoint=ck, levels=levels).loss
+                              checkpoint=ck, levels=levels, snapshots=levels).loss
 
         t0 = time.perf_counter()
         grad = jax.jit(jax.grad(f, argnums=(0, 1))).lower(*args).compile()
@@ -140,8 +148,8 @@ def main(argv=None):
                     help="time runs of at most this many steps (default 100; quick: all)")
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--strategies", nargs="+", default=None,
-                    help="checkpoint strategies among sqrt nestedK step none "
-                         "(default sqrt nested3 nested4 step none)")
+                    help="checkpoint strategies among sqrt nestedK binomialS step none "
+                         "(default sqrt nested3 nested4 binomial13 step none)")
     a = ap.parse_args(argv)
     sizes = a.sizes or ([32] if a.quick else [64, 128])
     steps = a.steps or ([20, 100] if a.quick else [100, 1000, 10000])

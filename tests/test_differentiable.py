@@ -18,6 +18,7 @@ every node contributes, and a linear loss keeps round-off in the FD quotient sma
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 
@@ -279,6 +280,91 @@ def test_nested_chunks():
         rd.nested_chunks(10, 0)
 
 
+@functools.cache
+def _binomial_dp(n, c):
+    """Brute-force optimum of the binomial schedule's re-run steps (j + F(n - j, c - 1) +
+    F(j, c) over every first checkpoint j; one snapshot: re-run from it)."""
+    if n <= 1:
+        return 0
+    if c == 1:
+        return n * (n - 1) // 2
+    return min(j + _binomial_dp(n - j, c - 1) + _binomial_dp(j, c) for j in range(1, n))
+
+
+def test_binomial_schedule_is_optimal_and_consistent():
+    """The schedule re-runs Griewank's minimal number of steps (closed form = brute force),
+    each reversal finds its step's state (replayed inside binomial_schedule), and at most
+    snapshots + 1 slots are used."""
+    for n in range(1, 41):
+        for c in range(1, 6):
+            sch = rd.binomial_schedule(n, c)
+            assert rd.binomial_cost(n, c) == _binomial_dp(n, c), (n, c)
+            assert sch.recomputed == rd.binomial_cost(n, c), (n, c)
+            used = set(sch.forward_store) | set(sch.store) | set(sch.end_store) | set(sch.restore)
+            assert used - {-1} <= set(range(c + 1)), (n, c, used)
+            assert len(sch.restore) == len(sch.advances) == len(sch.end_store) == n
+    assert rd.binomial_cost(10000, 13) == 48372  # t = 5 re-runs at most: 4.8 forward runs
+    with pytest.raises(ValueError, match="snapshots must be an integer >= 1, got 0"):
+        rd.binomial_schedule(10, 0)
+
+
+@pytest.mark.parametrize("n, snapshots", [(23, 1), (23, 3), (23, 5), (1, 2), (7, 30)])
+def test_binomial_checkpoints_agree_with_sqrt(fluid_model, n, snapshots):
+    """checkpoint="binomial" (custom VJP replaying the revolve schedule): same final state as
+    Model.run_steps, same observations and gradient as "sqrt" (1e-12)."""
+    model, state, params = fluid_model
+    dt = 0.01
+    ref = jax.jit(lambda s: model.run_steps(s, params, n, dt=dt))(state)
+
+    def f(eta, v, ck):
+        p = rd.replace_fluid(params, eta=eta)
+        out = rd.rollout(model, state.replace(v=v), p, n, dt, checkpoint=ck,
+                         snapshots=snapshots, observe=lambda s: s.v[0, 5, 5],
+                         loss=lambda s, o: jnp.sum(s.v**2) + jnp.sum(s.rho_f**2) + jnp.sum(o**3))
+        return out.loss, (out.state, out.observations)
+
+    res = {}
+    for ck in ("sqrt", "binomial"):
+        res[ck] = jax.jit(jax.value_and_grad(f, argnums=(0, 1), has_aux=True),
+                          static_argnums=2)(0.12, state.v, ck)
+    (_, (final, obs)), g = res["binomial"]
+    for k in ("v", "rho_f", "t"):
+        np.testing.assert_allclose(np.asarray(getattr(final, k)), np.asarray(getattr(ref, k)),
+                                   rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(np.asarray(obs), np.asarray(res["sqrt"][0][1][1]))
+    for a, b in zip(res["sqrt"][1], g, strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-15)
+        assert np.all(np.isfinite(np.asarray(b)))
+
+
+def test_binomial_checkpoints_agree_with_sqrt_on_a_solid():
+    """The circle at 16^2, 20 steps: binomial with 2 and 5 snapshots against "sqrt"
+    (gradient with respect to G and the initial velocity, 1e-12) and Model.run_steps."""
+    model, state, params = rd.from_case("circle", n=16)
+    dt = rd.stable_dt(model, state, params)
+    n = 20
+    ref = jax.jit(lambda s: model.run_steps(s, params, n, dt=dt))(state)
+    loss = _linear_loss(model, state, 3)
+
+    def f(G, v, ck, snapshots):
+        p = rd.replace_law(params, 0, G=G)
+        out = rd.rollout(model, state.replace(v=v), p, n, dt, loss=loss, checkpoint=ck,
+                         snapshots=snapshots)
+        return out.loss, out.state
+
+    vg = jax.jit(jax.value_and_grad(f, argnums=(0, 1), has_aux=True), static_argnums=(2, 3))
+    G0 = float(params.laws[0].G)
+    (_, _), g_ref = vg(G0, state.v, "sqrt", 1)
+    for snapshots in (2, 5):
+        (_, final), g = vg(G0, state.v, "binomial", snapshots)
+        for k in ("v", "rho_f", "xi", "phi"):
+            np.testing.assert_allclose(np.asarray(getattr(final, k)), np.asarray(getattr(ref, k)),
+                                       rtol=0, atol=1e-14)
+        for a, b in zip(g_ref, g, strict=True):
+            np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-15)
+            assert np.all(np.isfinite(np.asarray(b)))
+
+
 def test_observations_are_stacked_per_step(fluid_model):
     model, state, params = fluid_model
 
@@ -343,6 +429,8 @@ def test_rollout_rejects_bad_input(fluid_model):
         rd.rollout(model, state, params, 2, 0.01, checkpoint="sqrtn")
     with pytest.raises(ValueError, match="levels must be an integer >= 1, got 0"):
         rd.rollout(model, state, params, 2, 0.01, checkpoint="nested", levels=0)
+    with pytest.raises(ValueError, match="snapshots must be an integer >= 1, got 0"):
+        rd.rollout(model, state, params, 2, 0.01, checkpoint="binomial", snapshots=0)
     with pytest.raises(ValueError, match="dt must be a finite number > 0, got -0.01"):
         rd.rollout(model, state, params, 2, -0.01)
     with pytest.raises(ValueError, match="loss must be callable"):
