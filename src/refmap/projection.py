@@ -251,9 +251,9 @@ class Projection:
         """The discrete pressure gradient G p = -B^T p at the free velocity components."""
         return -self.BT(p)
 
-    def moving_rows(self, weight):
-        """(nx, ny) 0/1: the continuity rows with at least one velocity component that the
-        correction moves (``weight > 0`` and not prescribed)."""
+    def _row_sums(self, weight):
+        """Per continuity row (node i, j), the sums of ``weight`` over the free velocity
+        components it reads: u at i and i + 1, v at j and j + 1 (zero beyond a wall)."""
         g = self.grid
         wu = weight * self.mask[0]
         wv = weight * self.mask[1]
@@ -265,6 +265,12 @@ class Projection:
             vy = wv + jnp.roll(wv, -1, axis=1)
         else:
             vy = wv + jnp.concatenate([wv[:, 1:], jnp.zeros((g.nx, 1))], axis=1)
+        return ux, vy
+
+    def moving_rows(self, weight):
+        """(nx, ny) 0/1: the continuity rows with at least one velocity component that the
+        correction moves (``weight > 0`` and not prescribed)."""
+        ux, vy = self._row_sums(weight)
         return (ux + vy > 0).astype(jnp.float64)
 
     def operator(self, rho, weight=None):
@@ -311,16 +317,7 @@ class Projection:
                 return lambda r: keep * self.fast.solve(keep * r, 0.0, c, c) + drop * r
             return lambda r: keep * P(keep * r) + drop * r
         # the diagonal of B rho^-1 B^T: each node sees the free u at i and i + 1, v at j, j + 1
-        wu = inv * self.mask[0]
-        wv = inv * self.mask[1]
-        if self.periodic[0]:
-            ux = wu + jnp.roll(wu, -1, axis=0)
-        else:
-            ux = wu + jnp.concatenate([wu[1:], jnp.zeros((1, g.ny))], axis=0)
-        if self.periodic[1]:
-            vy = wv + jnp.roll(wv, -1, axis=1)
-        else:
-            vy = wv + jnp.concatenate([wv[:, 1:], jnp.zeros((g.nx, 1))], axis=1)
+        ux, vy = self._row_sums(inv)
         if self.has_outflow:
             diag = (ux / g.dx**2 + vy / g.dy**2) * self.keep + (1.0 - self.keep)
         else:
