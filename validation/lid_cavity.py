@@ -89,14 +89,16 @@ class BulkViscosity:
         return div_node(q, jnp.zeros_like(q), q, g.dx, g.dy)
 
 
-def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5, viscosity=None):
+def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5, viscosity=None,
+          fluid_mass="advected"):
     """(model, params, dt, zeta) for an n x n grid.
 
     ``viscosity=None`` (the validated set-up): zeta as the :class:`BulkViscosity` body force,
     acting everywhere, explicit.  ``"explicit"`` or ``"implicit"``: zeta as the fluid's
     ``bulk_viscosity`` (weighted by the fluid fraction like the rest of the fluid stress,
     so not in the solid) with ``Numerics.viscosity`` set so; implicit drops the diffusion
-    limit from dt (docs/validation.md, "Implicit viscosity").
+    limit from dt (docs/validation.md, "Implicit viscosity").  ``fluid_mass``: the
+    ``Numerics`` option ("conserved" keeps the box's fluid mass; docs/method.md).
     """
     h = 1.0 / n
     c = float(np.sqrt(lambda_f))
@@ -115,7 +117,7 @@ def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5, viscosity=None):
             ),
         ),
         Boundary(top=(Segment("velocity", velocity=(1.0, 0.0)),)),
-        Numerics(dt_fixed=dt, viscosity=viscosity or "explicit"),
+        Numerics(dt_fixed=dt, viscosity=viscosity or "explicit", fluid_mass=fluid_mass),
         body_forces=(BulkViscosity(zeta),) if zeta > 0 and not as_fluid else (),
     )
     params = Params(
