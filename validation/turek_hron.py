@@ -720,14 +720,9 @@ def run_cfd(
     out.mkdir(parents=True, exist_ok=True)
     model, params, info = make_incompressible_channel(ny, ubar=UBAR[case], mirror=mirror)
     tag = f"{case}_ny{ny}_inc" + ("_mirror" if mirror else "")
-    f, w = _writer(out / f"{tag}.csv", HEADER_INC)
-    t0 = time.time()
-    state, rows, steps = run_channel(
-        model, params, model.initial_state(params), t_end, chunk, tag, out, writer=w
+    state, rows, steps, t0 = _run_logged(
+        model, params, model.initial_state(params), t_end, chunk, tag, out, HEADER_INC, keep_state
     )
-    f.close()
-    if keep_state:
-        save_state(out / f"{tag}_state.npz", state)
     last = rows[-1]
     ref = dict(REFERENCE[case])
     if mirror:
@@ -769,14 +764,9 @@ def run_cfd1(
     out.mkdir(parents=True, exist_ok=True)
     model, params, info = make_channel(ny, rigid=True)
     tag = f"cfd1_ny{ny}{_compression_suffix()}"
-    f, w = _writer(out / f"{tag}.csv", HEADER)
-    t0 = time.time()
-    state, rows, steps = run_channel(
-        model, params, model.initial_state(params), t_end, chunk, tag, out, writer=w
+    state, rows, steps, t0 = _run_logged(
+        model, params, model.initial_state(params), t_end, chunk, tag, out, HEADER, keep_state
     )
-    f.close()
-    if keep_state:
-        save_state(out / f"{tag}_state.npz", state)
     last = rows[-1]
     ref = REFERENCE["cfd1"]
     result = dict(
@@ -801,6 +791,18 @@ def run_cfd1(
     result["err_lift"] = (result["lift"] - ref["lift"]) / ref["lift"]
     (out / f"{tag}.json").write_text(json.dumps(result, indent=1))
     return result
+
+
+def _run_logged(model, params, state, t_end, chunk, tag, out, header, keep_state=True):
+    """run_channel with its rows written to OUT/TAG.csv and the final state kept in
+    OUT/TAG_state.npz; returns (state, rows, steps, t0), t0 the wall clock at the start."""
+    f, w = _writer(out / f"{tag}.csv", header)
+    t0 = time.time()
+    state, rows, steps = run_channel(model, params, state, t_end, chunk, tag, out, writer=w)
+    f.close()
+    if keep_state:
+        save_state(out / f"{tag}_state.npz", state)
+    return state, rows, steps, t0
 
 
 def _mean(rows, col, span):
@@ -854,11 +856,7 @@ def run_fsi1(
         phi=jnp.asarray(z["phi"]),
     )
     tag = f"fsi1_ny{ny}_r{rho_scale:g}{_compression_suffix()}"
-    f, w = _writer(out / f"{tag}.csv", HEADER)
-    t0 = time.time()
-    state, rows, steps = run_channel(model, params, state, t_end, chunk, tag, out, writer=w)
-    f.close()
-    save_state(out / f"{tag}_state.npz", state)
+    state, rows, steps, t0 = _run_logged(model, params, state, t_end, chunk, tag, out, HEADER)
     last = rows[-1]
     ref = REFERENCE["fsi1"]
     result = dict(
