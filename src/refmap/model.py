@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from refmap import blend, extrapolation, levelset, narrowband
-from refmap.boundary import Boundary, BoundaryConditions
+from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
 from refmap.operators import (
     advect,
@@ -612,7 +612,7 @@ class Model:
         fraction follows the pinned level set: where the interface moves otherwise than the
         flow, fluid mass is made or lost, and a closed box's solids stretch or shrink to
         make up the pressure (the lid-driven cavity's disc: +21 % area by t = 12 at 32^2;
-        docs/method.md, "Fluid mass in a closed box")."""
+        docs/method.md, "Known weaknesses", swelling item (d))."""
         n = self.numerics
         w = n.blur_width * self.h
         wf_new = solid_fractions(blend.heaviside(phi_new, n.blend, w))[1]
@@ -973,23 +973,21 @@ class Model:
 def _check_closed(boundary: Boundary) -> None:
     """ValueError naming the edge through which fluid can flow (``fluid_mass =
     "conserved"`` keeps the fluid's mass constant, which only a closed box does)."""
-    normal = {"left": 0, "right": 0, "bottom": 1, "top": 1}
-    for name, axis in normal.items():
-        edge = getattr(boundary, name)
-        if edge == "periodic":
-            continue
-        for seg in edge:
-            un = seg.velocity[axis] if seg.kind in ("velocity", "wall") else 0.0
-            if seg.kind == "outflow":
-                what = "an 'outflow' segment"
-            elif not (isinstance(un, (int, float)) and un == 0.0):
-                what = f"a {seg.kind!r} segment with normal velocity {un!r}"
-            else:
-                continue
-            raise ValueError(
-                f"numerics fluid_mass 'conserved' needs a closed box, but the {name} edge has "
-                f"{what}, through which fluid can flow; use fluid_mass = 'advected' there"
-            )
+    for axis, names in enumerate(AXIS_FACES[: boundary.ndim]):
+        for name in names:
+            edge = getattr(boundary, name)
+            for seg in () if edge == "periodic" else edge:
+                un = seg.velocity[axis] if seg.kind in ("velocity", "wall") else 0.0
+                if seg.kind == "outflow":
+                    what = "an 'outflow' segment"
+                elif not (isinstance(un, (int, float)) and un == 0.0):
+                    what = f"a {seg.kind!r} segment with normal velocity {un!r}"
+                else:
+                    continue
+                raise ValueError(
+                    f"numerics fluid_mass 'conserved' needs a closed box, but the {name} edge "
+                    f"has {what}, through which fluid can flow; use fluid_mass = 'advected' there"
+                )
 
 
 def check_finite_fields(state: State) -> list[str]:

@@ -210,8 +210,8 @@ class Numerics:
     thesis's non-conservative density update: the fluid's mass drifts where the interface
     moves otherwise than the flow) or ``"conserved"``: after each step the fluid density
     is shifted, in proportion to the fluid fraction, so that the fluid's mass sum(w_f rho_f)
-    is what it was before the step (docs/method.md, "Fluid mass in a closed box"); refused
-    with an edge through which fluid can flow.
+    is what it was before the step (docs/method.md, "Known weaknesses", swelling item
+    (d)); refused with an edge through which fluid can flow.
     """
 
     blur_width: float = 2.0
