@@ -26,6 +26,7 @@ are advanced with the updated velocity; the explicit default is unchanged bit fo
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -38,6 +39,7 @@ from refmap import blend, extrapolation, levelset, narrowband
 from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
 from refmap.operators import (
+    SYM_COMPONENTS,
     advect,
     corner_average,
     div_node,
@@ -69,30 +71,62 @@ class Solid:
     identity for an unstrained body) and ``c = strain_center``: the body starts in the
     region {x : shape(xi(x, 0)) < 0}, deformed by F = A^-1.  ``velocity`` is its initial
     velocity; ``anchor`` an optional :mod:`refmap.anchors` constraint.
+
+    The dimension d is the law's (``law.dim``, 2 unless built with ``dim=3``); ``strain``,
+    ``strain_center`` and ``velocity`` left unset are the d x d identity and d zeros, and
+    given ones must have d entries (the shape must be d-dimensional too).
     """
 
     shape: Any
     law: Any
-    strain: tuple = ((1.0, 0.0), (0.0, 1.0))
-    strain_center: tuple = (0.0, 0.0)
-    velocity: tuple = (0.0, 0.0)
+    strain: tuple | None = None
+    strain_center: tuple | None = None
+    velocity: tuple | None = None
     anchor: Any = None
     name: str = "solid"
 
+    @property
+    def ndim(self) -> int:
+        return int(getattr(self.law, "dim", 2))
+
     def __post_init__(self):
-        A = np.asarray(self.strain, dtype=float)
-        if A.shape != (2, 2) or not np.all(np.isfinite(A)):
-            raise ValueError(f"solid {self.name!r}: strain must be a finite 2x2 matrix, got {self.strain!r}")
+        d = self.ndim
+        shape_d = getattr(self.shape, "ndim", 2)
+        if isinstance(shape_d, (int, np.integer)) and shape_d != d:
+            hint = " (build the law with dim=3, or use law.with_dim(3))" if shape_d == 3 else ""
+            raise ValueError(
+                f"solid {self.name!r}: its shape {type(self.shape).__name__} is {shape_d}D but "
+                f"its law {type(self.law).__name__} is {d}D{hint}"
+            )
+        A = np.eye(d) if self.strain is None else np.asarray(self.strain, dtype=float)
+        if A.shape != (d, d) or not np.all(np.isfinite(A)):
+            raise ValueError(f"solid {self.name!r}: strain must be a finite {d}x{d} matrix, got {self.strain!r}")
         if np.linalg.det(A) <= 0:
             raise ValueError(f"solid {self.name!r}: strain must have a positive determinant, got det={np.linalg.det(A):.4g}")
+        for key in ("strain_center", "velocity"):
+            val = getattr(self, key)
+            vec = np.zeros(d) if val is None else np.asarray(val, dtype=float)
+            if vec.shape != (d,) or not np.all(np.isfinite(vec)):
+                raise ValueError(f"solid {self.name!r}: {key} must be {d} finite numbers, got {val!r}")
+            object.__setattr__(self, key, tuple(float(c) for c in vec))
         object.__setattr__(self, "strain", tuple(tuple(float(a) for a in r) for r in A))
-        object.__setattr__(self, "strain_center", tuple(float(c) for c in self.strain_center))
-        object.__setattr__(self, "velocity", tuple(float(c) for c in self.velocity))
 
-    def initial_map(self, X, Y):
-        (a, b), (c, d) = self.strain
-        cx, cy = self.strain_center
-        return a * (X - cx) + b * (Y - cy) + cx, c * (X - cx) + d * (Y - cy) + cy
+    def initial_map(self, *X):
+        """The initial map's components at the coordinates ``X`` (d arrays)."""
+        A = self.strain
+        c = self.strain_center
+        if len(X) == 2:  # the original 2D arithmetic, bit for bit
+            (a, b), (e, f) = A
+            cx, cy = c
+            x, y = X
+            return a * (x - cx) + b * (y - cy) + cx, e * (x - cx) + f * (y - cy) + cy
+        out = []
+        for i in range(len(X)):
+            acc = c[i]
+            for j in range(len(X)):
+                acc = acc + A[i][j] * (X[j] - c[j])
+            out.append(acc)
+        return tuple(out)
 
 
 class StepInfo(NamedTuple):
@@ -136,6 +170,43 @@ def solid_fractions(H):
     return ws, wf
 
 
+#: the (a, b) index pairs of a symmetric tensor's independent components, in
+#: ``operators.SYM_COMPONENTS`` order
+_SYM_PAIRS = {d: [(a, b) for a in range(d) for b in range(a, d)] for d in (2, 3)}
+
+
+def _stress_keys(components, nd: int) -> dict:
+    """The mixed stress's corner components as a dict: ``s`` (the tuple, in
+    ``SYM_COMPONENTS`` order) and ``sxx``, ``sxy``, ... by name."""
+    out = {"s": tuple(components)}
+    for name, c in zip(SYM_COMPONENTS[nd], components, strict=True):
+        out["s" + name] = c
+    return out
+
+
+def _det_adjugate(dxi):
+    """Determinant and adjugate (..., d, d) of the matrix A with A[a][b] = ``dxi[a][b]``.
+
+    2D: the thesis's closed form (bit for bit the original arithmetic); 3D: cofactors.
+    """
+    if len(dxi) == 2:
+        (Xx, Xy), (Yx, Yy) = dxi
+        det = Xx * Yy - Xy * Yx
+        adj = jnp.stack([jnp.stack([Yy, -Xy], axis=-1), jnp.stack([-Yx, Xx], axis=-1)], axis=-2)
+        return det, adj
+    A = dxi
+    # cofactor C[i][j] = (-1)^(i+j) minor(i, j); adj = C^T
+    C = [[None] * 3 for _ in range(3)]
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            C[i][j] = A[i1][j1] * A[i2][j2] - A[i1][j2] * A[i2][j1]
+    det = A[0][0] * C[0][0] + A[0][1] * C[0][1] + A[0][2] * C[0][2]
+    adj = jnp.stack([jnp.stack([C[j][i] for j in range(3)], axis=-1) for i in range(3)], axis=-2)
+    return det, adj
+
+
 class Model:
     """Static description of a case and the pure step function built from it."""
 
@@ -149,12 +220,22 @@ class Model:
         initial_velocity=None,
     ):
         self.grid = grid
+        self.ndim = d = grid.ndim
+        self.spacing = tuple(grid.spacing)
         self.solids = tuple(solids)
+        for s in self.solids:
+            if s.ndim != d:
+                raise ValueError(
+                    f"solid {s.name!r} is {s.ndim}D (its law's dim) but the grid is {d}D"
+                    + (" (build its law with dim=3, or law.with_dim(3))" if d == 3 else "")
+                )
         self.boundary = boundary if boundary is not None else Boundary()
         self.numerics = numerics if numerics is not None else Numerics()
         self.body_forces = tuple(body_forces)
         self.bc = BoundaryConditions(grid, self.boundary)
         self.h = grid.h
+        if d == 3:
+            _check_3d_support(self)
         self.implicit_viscosity = (
             ImplicitViscosity(self, rtol=self.numerics.viscosity_rtol,
                               preconditioner=self.numerics.viscosity_preconditioner)
@@ -181,23 +262,23 @@ class Model:
                     )
                 free = free * (1.0 - np.asarray(weight(grid)))
         self._anchor_free = None if np.all(free == 1.0) else free
-        if initial_velocity is not None:  # node values (2, nx, ny), see initial_state
+        if initial_velocity is not None:  # node values (d, nx, ny[, nz]), see initial_state
             v0 = np.asarray(initial_velocity, dtype=np.float64)
-            if v0.shape != (2,) + grid.shape():
-                raise ValueError(f"initial_velocity must have the node shape {(2,) + grid.shape()}, "
+            if v0.shape != (d,) + grid.shape():
+                raise ValueError(f"initial_velocity must have the node shape {(d,) + grid.shape()}, "
                                  f"got {v0.shape}")
             if not np.all(np.isfinite(v0)):
                 raise ValueError(f"initial_velocity has {int((~np.isfinite(v0)).sum())} non-finite values")
             initial_velocity = v0
         self.initial_velocity = initial_velocity
-        X, Y = grid.mesh("node")
+        Xn = grid.mesh("node")
         self._xi0 = np.stack(
-            [np.stack(s.initial_map(X, Y)) for s in self.solids]
-        ) if self.solids else np.zeros((0, 2) + grid.shape())
+            [np.stack(s.initial_map(*Xn)) for s in self.solids]
+        ) if self.solids else np.zeros((0, d) + grid.shape())
         if self.solids:  # solids touching a resting wall at t = 0 stay glued to it
             with jax.ensure_compile_time_eval():
                 inside0 = [np.asarray(self.phi0(k, self._xi0[k])) < 0 for k in range(self.n_solids)]
-            self.bc.glue(self._xi0 - np.stack([X, Y]), np.stack(inside0))
+            self.bc.glue(self._xi0 - np.stack(Xn), np.stack(inside0))
         self.band_capacity = self._initial_band_capacity()
 
     def _initial_band_capacity(self):
@@ -212,8 +293,11 @@ class Model:
         it makes the step fall back on the full-grid sweeps (same result, full cost).  A
         tighter capacity, ``BAND_TIGHT`` times those tiles plus 8, is tried first."""
         n = self.numerics
-        self.band_tile = narrowband.tile_shape(self.grid.shape(), self.bc.periodic)
         self._band_tight = None
+        if self.ndim == 3:  # the tile layout is 2D: 3D sweeps run on the full grid
+            self.band_tile = None
+            return None
+        self.band_tile = narrowband.tile_shape(self.grid.shape(), self.bc.periodic)
         if n.band_sweeps == "grid" or not self.solids or self.band_tile is None:
             return None
         shift = n.advected_band * self.h
@@ -233,6 +317,19 @@ class Model:
     def n_solids(self) -> int:
         return len(self.solids)
 
+    def _dz(self) -> dict:
+        """``{"dz": dz}`` in 3D, ``{}`` in 2D: the keyword that makes the level-set and
+        extrapolation functions 3D."""
+        return {"dz": self.grid.dz} if self.ndim == 3 else {}
+
+    def _core(self, g: int = 1):
+        """Index dropping ``g`` layers on each side of the ``ndim`` grid axes."""
+        return (Ellipsis,) + (slice(g, -g),) * self.ndim
+
+    def _vec(self, a):
+        """A d-vector (d,) as (d, 1, ..., 1), to broadcast against node fields."""
+        return jnp.asarray(a).reshape((self.ndim,) + (1,) * self.ndim)
+
     def _images(self, xi_k):
         """The periodic images of reference points ``xi_k`` (2, ...) that phi0 examines.
 
@@ -246,13 +343,15 @@ class Model:
         both axes at once at the diagonally opposite corner) is recognised too.  This finds
         every reference point of a shape that lies within one period of the box.
 
-        Returns a list of ``(X, Y, sx, sy)``: the image and its shift from ``xi_k`` (a whole
-        number of periods per axis), ``X = xi_k[0] + sx``, ``Y = xi_k[1] + sy``.
+        Returns a list of ``(X, shift)``: the image (a tuple of d coordinate arrays) and its
+        shift from ``xi_k`` (a tuple of d arrays, a whole number of periods per axis),
+        ``X[c] = xi_k[c] + shift[c]``.
         """
         g = self.grid
-        out = []
+        lows = (g.ax, g.ay, getattr(g, "az", None))[: self.ndim]
+        highs = (g.bx, g.by, getattr(g, "bz", None))[: self.ndim]
         per_axis = []
-        for c, (a, b, periodic) in enumerate(((g.ax, g.bx, self.bc.periodic[0]), (g.ay, g.by, self.bc.periodic[1]))):
+        for c, (a, b, periodic) in enumerate(zip(lows, highs, self.bc.periodic, strict=True)):
             x = xi_k[c]
             if not periodic:
                 per_axis.append([(x, jnp.zeros_like(x))])
@@ -260,34 +359,34 @@ class Model:
             L = b - a
             base = a + jnp.mod(x - a, L) - x  # a whole number of periods (to round-off)
             per_axis.append([(x + base + m * L, base + m * L) for m in (0, -1, 1)])
-        for X, sx in per_axis[0]:
-            for Y, sy in per_axis[1]:
-                out.append((X, Y, sx, sy))
+        out = []
+        for combo in itertools.product(*per_axis):
+            out.append((tuple(X for X, _ in combo), tuple(sh for _, sh in combo)))
         return out
 
     def phi0(self, k: int, xi_k, return_shift: bool = False):
         """phi0_k(xi_k): where solid k's material says its boundary is (thesis eq. 4.27).
 
         On periodic axes the reference shape is repeated with the period: the minimum over
-        the images of :meth:`_images` (shifts along x, along y and along both), so a body
-        that crossed an edge or a corner, any number of times, is still recognised.  With
-        ``return_shift`` also the shift (2, ...) of the image that gave the minimum, i.e.
-        ``xi_k + shift`` is the material's reference point within the reference shape's
-        own image (used to unwrap the positions of a body cut by a periodic edge).
+        the images of :meth:`_images` (shifts along each periodic axis and along several at
+        once), so a body that crossed an edge or a corner, any number of times, is still
+        recognised.  With ``return_shift`` also the shift (d, ...) of the image that gave
+        the minimum, i.e. ``xi_k + shift`` is the material's reference point within the
+        reference shape's own image (used to unwrap the positions of a body cut by a
+        periodic edge).
         """
         shape = self.solids[k].shape
-        out = sx_best = sy_best = None
-        for X, Y, sx, sy in self._images(xi_k):
-            val = shape(X, Y)
+        out = best = None
+        for X, shift in self._images(xi_k):
+            val = shape(*X)
             if out is None:
-                out, sx_best, sy_best = val, sx, sy
+                out, best = val, list(shift)
                 continue
             better = val < out
             out = jnp.where(better, val, out)
-            sx_best = jnp.where(better, sx, sx_best)
-            sy_best = jnp.where(better, sy, sy_best)
+            best = [jnp.where(better, sh, b) for sh, b in zip(shift, best, strict=True)]
         if return_shift:
-            return out, jnp.stack([sx_best, sy_best])
+            return out, jnp.stack(best)
         return out
 
     def extrapolate(self, xi, phi):
@@ -328,6 +427,7 @@ class Model:
             self.grid.dx,
             self.grid.dy,
             n.band * self.h - shift,
+            **({"dz": self.grid.dz} if self.ndim == 3 else {}),
             capacity=self.band_capacity
             if self.band_capacity is None or self._band_tight is None
             else (self._band_tight, self.band_capacity),
@@ -392,6 +492,7 @@ class Model:
                     redistance_iters=n.redistance_iters,
                     phi_max=n.phi_max * h,
                     periodic=self.bc.periodic,
+                    **self._dz(),
                 )
             )
         return jnp.stack(out) if out else phi
@@ -418,21 +519,23 @@ class Model:
         sound waves, as the fluid density starts uniform.
         """
         g = self.grid
-        nx, ny = g.shape()
+        shape = g.shape()
         xi = jnp.asarray(self._xi0)
         phis = []
         for k in range(self.n_solids):
             psi = self.phi0(k, xi[k])
-            phi_k = levelset.redistance(psi, g.dx, g.dy, redistance_iters, periodic=self.bc.periodic)
+            phi_k = levelset.redistance(psi, g.dx, g.dy, redistance_iters, periodic=self.bc.periodic,
+                                        **self._dz())
             phis.append(jnp.clip(phi_k, -self.numerics.phi_max * self.h, self.numerics.phi_max * self.h))
-        phi = jnp.stack(phis) if phis else jnp.zeros((0, nx, ny))
-        v = jnp.zeros((2, nx, ny)) if self.initial_velocity is None else jnp.asarray(self.initial_velocity)
+        phi = jnp.stack(phis) if phis else jnp.zeros((0, *shape))
+        v = (jnp.zeros((self.ndim, *shape)) if self.initial_velocity is None
+             else jnp.asarray(self.initial_velocity))
         if self.n_solids:
             H = blend.heaviside(phi, self.numerics.blend, self.numerics.blur_width * self.h)
             ws, _ = solid_fractions(H)
             for k, s in enumerate(self.solids):
-                v = v + ws[k][None] * jnp.asarray(s.velocity)[:, None, None]
-        rho_f = jnp.full((nx, ny), params.fluid.rho0, dtype=jnp.float64)
+                v = v + ws[k][None] * self._vec(s.velocity)
+        rho_f = jnp.full(shape, params.fluid.rho0, dtype=jnp.float64)
         return State(
             t=jnp.asarray(0.0, dtype=jnp.float64),
             step=jnp.asarray(0, dtype=jnp.int64),
@@ -442,7 +545,11 @@ class Model:
             phi=phi,
         )
 
-    def default_params(self, fluid: FluidParams | None = None, gravity=(0.0, 0.0)) -> Params:
+    def default_params(self, fluid: FluidParams | None = None, gravity=None) -> Params:
+        if gravity is None:
+            gravity = (0.0,) * self.ndim
+        if len(gravity) != self.ndim:
+            raise ValueError(f"gravity must have {self.ndim} components on a {self.ndim}D grid, got {gravity!r}")
         return Params(
             fluid=fluid if fluid is not None else FluidParams(),
             laws=tuple(s.law for s in self.solids),
@@ -493,7 +600,10 @@ class Model:
             c_solid = jnp.maximum(c_solid, jnp.sqrt(M / law.rho0))
             M_max = jnp.maximum(M_max, M)
         nu = (fl.eta + fl.extra_viscosity + fl.bulk_viscosity) / rho_min
-        vmax = jnp.max(jnp.abs(state.v[0]) + jnp.abs(state.v[1]))
+        speed = jnp.abs(state.v[0]) + jnp.abs(state.v[1])
+        for a in range(2, self.ndim):
+            speed = speed + jnp.abs(state.v[a])
+        vmax = jnp.max(speed)
         damping = jnp.where(
             (fl.extra_viscosity > 0) & (len(params.laws) > 0),
             2.0 * fl.extra_viscosity / M_max,
@@ -508,7 +618,8 @@ class Model:
         if implicit:  # symplectic transport: no damping limit
             damping = jnp.asarray(jnp.inf)
         sound = jnp.asarray(jnp.inf) if incompressible else h / fl.sound_speed
-        viscous = h * h / (4.0 * jnp.maximum(nu, 1e-30))
+        # explicit diffusion: h^2 / (2 d nu)
+        viscous = h * h / ((4.0 if self.ndim == 2 else 6.0) * jnp.maximum(nu, 1e-30))
         if implicit:  # backward Euler: no viscous limit
             viscous = jnp.asarray(jnp.inf)
         limits = jnp.stack(
@@ -536,67 +647,68 @@ class Model:
 
         ``viscous=False`` leaves the fluid's viscous stress out of the mixed stress (the
         implicit viscous step adds it separately, :mod:`refmap.viscosity`)."""
-        g = self.grid
-        dx, dy, h = g.dx, g.dy, self.h
+        h = self.h
+        sp = self.spacing
+        nd = self.ndim
         n = self.numerics
         fl = params.fluid
         bc = self.bc
+        core = self._core(1)
         vp = bc.pad_velocity(state.v, state.t)
         rp = bc.pad_density(state.rho_f, state.t, fl.rho0)
-        vp1 = vp[:, 1:-1, 1:-1]
-        rp1 = rp[1:-1, 1:-1]
+        vp1 = vp[core]
+        rp1 = rp[core]
 
         # fluid stress at corners: pressure from the bottom-left node (as the thesis's code),
         # viscous part eta * sym(grad v) with the bottom-left-triangle gradient
-        p = fl.lambda_f * (rp1[:-1, :-1] / fl.rho0 - 1.0)
-        ux, uy = grad_corner(vp1[0], dx, dy)
-        vx, vy = grad_corner(vp1[1], dx, dy)
-        div_corner = ux + vy  # corner divergence of v (bottom-left triangle)
+        p = fl.lambda_f * (rp1[(Ellipsis,) + (slice(None, -1),) * nd] / fl.rho0 - 1.0)
+        dv = [grad_corner(vp1[a], *sp) for a in range(nd)]  # dv[a][b] = d v_a / d x_b
+        div_corner = dv[0][0] + dv[1][1]  # corner divergence of v (bottom-left triangle)
+        for a in range(2, nd):
+            div_corner = div_corner + dv[a][a]
         if viscous:
             bulk = fl.bulk_viscosity * div_corner
-            sxx_f = -p + fl.eta * ux + bulk
-            sxy_f = 0.5 * fl.eta * (uy + vx)
-            syy_f = -p + fl.eta * vy + bulk
+            s_f = []
+            for a, b in _SYM_PAIRS[nd]:
+                if a == b:
+                    s_f.append(-p + fl.eta * dv[a][a] + bulk)
+                else:
+                    s_f.append(0.5 * fl.eta * (dv[a][b] + dv[b][a]))
         else:
-            sxx_f, sxy_f, syy_f = -p, jnp.zeros_like(p), -p
+            s_f = [-p if a == b else jnp.zeros_like(p) for a, b in _SYM_PAIRS[nd]]
 
         out = dict(p_corner=p, div_corner=div_corner)
         N = self.n_solids
         if N == 0:
-            out.update(sxx=sxx_f, sxy=sxy_f, syy=syy_f, rho=state.rho_f,
+            out.update(_stress_keys(s_f, nd), rho=state.rho_f,
                        wf_c=jnp.ones_like(p), wf_n=jnp.ones_like(state.rho_f))
             return out
 
-        phip = bc.pad_linear(state.phi)[..., 1:-1, 1:-1]
-        phic = corner_average(phip)
+        phip = bc.pad_linear(state.phi)[core]
+        phic = corner_average(phip, nd)
         w = n.blur_width * h
         Hc = blend.heaviside(phic, n.blend, w)
         Hn = blend.heaviside(state.phi, n.blend, w)
         ws_c, wf_c = solid_fractions(Hc)
         ws_n, wf_n = solid_fractions(Hn)
 
-        xip = bc.pad_affine(state.xi)[..., 1:-1, 1:-1]
-        Xx, Xy = grad_corner(xip[:, 0], dx, dy)
-        Yx, Yy = grad_corner(xip[:, 1], dx, dy)
-        det = Xx * Yy - Xy * Yx  # det(grad xi) = 1 / J
+        xip = bc.pad_affine(state.xi)[core]
+        dxi = [grad_corner(xip[:, a], *sp) for a in range(nd)]  # dxi[a][b] = d xi_a / d x_b
+        det, adj = _det_adjugate(dxi)  # det(grad xi) = 1 / J; F = (grad xi)^-1 = adj / det
         valid = (phic < n.stress_band * h) & (det > 1e-12)
         safe_det = jnp.where(valid, det, 1.0)
-        # F = (grad xi)^-1
-        F = jnp.stack(
-            [jnp.stack([Yy, -Xy], axis=-1), jnp.stack([-Yx, Xx], axis=-1)], axis=-2
-        ) / safe_det[..., None, None]
-        F = jnp.where(valid[..., None, None], F, jnp.eye(2))
+        F = adj / safe_det[..., None, None]
+        F = jnp.where(valid[..., None, None], F, jnp.eye(nd))
         sig, rho0 = _solid_stresses(params.laws, F)
         sig = jnp.where(valid[..., None, None], sig, 0.0)
-        rho0 = rho0[:, None, None]
+        rho0 = rho0.reshape((-1,) + (1,) * nd)
         rho_s = jnp.where(valid, rho0 * det, rho0)
 
-        sxx = wf_c * sxx_f + jnp.sum(ws_c * sig[..., 0, 0], axis=0)
-        sxy = wf_c * sxy_f + jnp.sum(ws_c * sig[..., 0, 1], axis=0)
-        syy = wf_c * syy_f + jnp.sum(ws_c * sig[..., 1, 1], axis=0)
-        rho = wf_n * state.rho_f + jnp.sum(ws_n * node_average(rho_s), axis=0)
+        s_mix = [wf_c * sf + jnp.sum(ws_c * sig[..., a, b], axis=0)
+                 for sf, (a, b) in zip(s_f, _SYM_PAIRS[nd], strict=True)]
+        rho = wf_n * state.rho_f + jnp.sum(ws_n * node_average(rho_s, nd), axis=0)
         out.update(
-            sxx=sxx, sxy=sxy, syy=syy, rho=rho, F=F, J=jnp.where(valid, 1.0 / safe_det, 1.0),
+            _stress_keys(s_mix, nd), rho=rho, F=F, J=jnp.where(valid, 1.0 / safe_det, 1.0),
             valid=valid, sigma_s=sig, Hc=Hc, Hn=Hn, ws_c=ws_c, ws_n=ws_n, wf_c=wf_c, wf_n=wf_n,
             phic=phic,
         )
@@ -660,7 +772,9 @@ class Model:
         the projection's pressure (nx, ny) of this step instead of the new state (for
         output, :meth:`output_fields`; plain CG, not differentiable)."""
         g = self.grid
-        dx, dy, h = g.dx, g.dy, self.h
+        h = self.h
+        sp = self.spacing
+        nd = self.ndim
         n = self.numerics
         fl = params.fluid
         bc = self.bc
@@ -674,14 +788,14 @@ class Model:
 
         # 6. updates of v and rho_f (with implicit viscosity: every term but the viscous
         # ones here, then the backward-Euler viscous solve, refmap.viscosity)
-        divs = div_node(d["sxx"], d["sxy"], d["syy"], dx, dy)
+        divs = div_node(*d["s"], *sp)
         if n.band_force == "solid" and self.n_solids:
             divs = divs + self.band_force_to_solid(state, d)
-        force = divs if implicit else divs + fl.extra_viscosity * laplacian(vp, dx, dy, g=2)
+        force = divs if implicit else divs + fl.extra_viscosity * laplacian(vp, *sp, g=2)
         ctx = dict(state=state, params=params, derived=d, model=self)
         for term in self.body_forces:
             force = force + term(ctx)
-        acc = advect(vp, v, dx, dy) + force / d["rho"][None] + jnp.asarray(params.gravity)[:, None, None]
+        acc = advect(vp, v, *sp) + force / d["rho"][None] + self._vec(params.gravity)
         # rho_f is the fluid's density; inside a solid there is no fluid to compress, so the
         # compression term is weighted by the fluid fraction and rho_f is only carried
         # there.  (Unweighted, a steady converging solid velocity -- at the edge of the
@@ -720,16 +834,18 @@ class Model:
             # the bottom-left-node corner pressure (see Numerics), with that corner's fluid
             # fraction
             if implicit:
-                ux, _ = grad_corner(vqp[0, 1:-1, 1:-1], dx, dy)
-                _, vy = grad_corner(vqp[1, 1:-1, 1:-1], dx, dy)
-                div_c = ux + vy
+                vq1 = vqp[self._core(1)]
+                div_c = grad_corner(vq1[0], *sp)[0] + grad_corner(vq1[1], *sp)[1]
+                for a in range(2, nd):
+                    div_c = div_c + grad_corner(vq1[a], *sp)[a]
             else:
                 div_c = d["div_corner"]
-            compression = d["wf_c"][1:, 1:] * div_c[1:, 1:]
+            top = (Ellipsis,) + (slice(1, None),) * nd
+            compression = d["wf_c"][top] * div_c[top]
         else:
-            compression = d["wf_n"] * divergence_centered(vqp[0], vqp[1], dx, dy, g=2)
+            compression = d["wf_n"] * divergence_centered(*vqp, *sp, g=2)
         if self.projection is None:
-            drho = advect(rp, vq, dx, dy) - rho_f * compression
+            drho = advect(rp, vq, *sp) - rho_f * compression
             rho_new = rho_f + dt * drho
 
         if self.n_solids == 0:
@@ -739,7 +855,7 @@ class Model:
         xip = bc.pad_affine(state.xi)
         # with implicit viscosity the maps move with the updated velocity (symplectic Euler
         # for the elastic waves: no damping needed for their stability, see time_step)
-        dxi = advect(xip, vq, dx, dy)
+        dxi = advect(xip, vq, *sp)
         inside = (state.phi < (n.band - 3.0) * h)[:, None]
         xi_new = jnp.where(inside, state.xi + dt * dxi, state.xi)
 
@@ -831,29 +947,36 @@ class Model:
         Valid while the body is smaller than the box.
         """
         g = self.grid
-        X, Y = (jnp.asarray(a) for a in g.mesh("node"))
+        Xn = [jnp.asarray(a) for a in g.mesh("node")]
+        lows = (g.ax, g.ay, getattr(g, "az", None))[: self.ndim]
+        highs = (g.bx, g.by, getattr(g, "bz", None))[: self.ndim]
         _, shift = self.phi0(k, xi_k, return_shift=True)
         total = jnp.sum(ws)
         out = []
-        for c, (x, a, b) in enumerate(((X, g.ax, g.bx), (Y, g.ay, g.by))):
+        for c, (x, a, b) in enumerate(zip(Xn, lows, highs, strict=True)):
             mean = jnp.sum(ws * (x + shift[c])) / total
             if self.bc.periodic[c]:
                 mean = a + jnp.mod(mean - a, b - a)
             out.append(mean)
-        return out[0], out[1]
+        return tuple(out)
 
     def diagnostics(self, state: State, params: Params):
         """Scalar diagnostics and per-solid numbers at the current state (jit-able)."""
         g = self.grid
-        dA = g.cell_area
+        nd = self.ndim
+        dA = g.cell_area if nd == 2 else g.cell_volume  # "area" below is the d-dim. measure
         d = self.derived(state, params)
         v = state.v
+        v2 = v[0] ** 2 + v[1] ** 2
+        for a in range(2, nd):
+            v2 = v2 + v[a] ** 2
+        mean_p = self._mean_pressure(d)
         out = dict(
-            kinetic_energy=0.5 * jnp.sum(d["rho"] * (v[0] ** 2 + v[1] ** 2)) * dA,
+            kinetic_energy=0.5 * jnp.sum(d["rho"] * v2) * dA,
             fluid_mass=jnp.sum(d["wf_n"] * state.rho_f) * dA,
-            max_speed=jnp.max(jnp.sqrt(v[0] ** 2 + v[1] ** 2)),
-            max_pressure=jnp.max(-0.5 * (d["sxx"] + d["syy"])),
-            min_pressure=jnp.min(-0.5 * (d["sxx"] + d["syy"])),
+            max_speed=jnp.max(jnp.sqrt(v2)),
+            max_pressure=jnp.max(mean_p),
+            min_pressure=jnp.min(mean_p),
         )
         if self.n_solids:
             inside_c = d["phic"] < 0
@@ -861,24 +984,26 @@ class Model:
             e_el = 0.0
             per = []
             for k, law in enumerate(params.laws):
-                psi = jax.vmap(jax.vmap(law.psi))(d["F"][k])
+                psi_fn = law.psi
+                for _ in range(nd):
+                    psi_fn = jax.vmap(psi_fn)
+                psi = psi_fn(d["F"][k])
                 e_k = jnp.sum(jnp.where(d["valid"][k], d["ws_c"][k] * psi / Jk[k], 0.0)) * dA
                 e_el = e_el + e_k
                 ws = d["ws_n"][k]
                 area = jnp.sum(ws) * dA
-                cx, cy = self._centroid(k, state.xi[k], ws)
-                per.append(
-                    dict(
-                        area=area,
-                        centroid_x=cx,
-                        centroid_y=cy,
-                        velocity_x=jnp.sum(ws * v[0]) / jnp.sum(ws),
-                        velocity_y=jnp.sum(ws * v[1]) / jnp.sum(ws),
-                        J_min=jnp.min(jnp.where(inside_c[k], Jk[k], jnp.inf)),
-                        J_max=jnp.max(jnp.where(inside_c[k], Jk[k], -jnp.inf)),
-                        elastic_energy=e_k,
-                    )
+                centroid = self._centroid(k, state.xi[k], ws)
+                row = dict(area=area)
+                for c, name in enumerate("xyz"[:nd]):
+                    row["centroid_" + name] = centroid[c]
+                for c, name in enumerate("xyz"[:nd]):
+                    row["velocity_" + name] = jnp.sum(ws * v[c]) / jnp.sum(ws)
+                row.update(
+                    J_min=jnp.min(jnp.where(inside_c[k], Jk[k], jnp.inf)),
+                    J_max=jnp.max(jnp.where(inside_c[k], Jk[k], -jnp.inf)),
+                    elastic_energy=e_k,
                 )
+                per.append(row)
             out["elastic_energy"] = e_el
             out["solid_area"] = sum(p["area"] for p in per)
             out["J_min"] = jnp.min(jnp.stack([p["J_min"] for p in per]))
@@ -913,8 +1038,9 @@ class Model:
         def col(key):
             return jnp.stack([p[key] for p in per])
 
-        out["solid_centroid"] = jnp.stack([col("centroid_x"), col("centroid_y")], axis=-1)
-        out["solid_velocity"] = jnp.stack([col("velocity_x"), col("velocity_y")], axis=-1)
+        axes = "xyz"[: self.ndim]
+        out["solid_centroid"] = jnp.stack([col("centroid_" + a) for a in axes], axis=-1)
+        out["solid_velocity"] = jnp.stack([col("velocity_" + a) for a in axes], axis=-1)
         for key in ("area", "J_min", "J_max"):
             out[f"solid_{key}"] = col(key)
         d = self.derived(state, params)
@@ -926,10 +1052,12 @@ class Model:
 
     def frame_array_dims(self) -> dict[str, tuple[str, ...]]:
         """Names of the axes of each :meth:`frame_arrays` entry (``solid``: the solids,
-        ``other_solid``: the second solid of a pair, ``xy``: the x and y components)."""
+        ``other_solid``: the second solid of a pair, ``xy``: the x and y components; ``xyz``
+        in 3D)."""
         if not self.n_solids:
             return {}
-        out = {"solid_centroid": ("solid", "xy"), "solid_velocity": ("solid", "xy")}
+        comp = "xy" if self.ndim == 2 else "xyz"
+        out = {"solid_centroid": ("solid", comp), "solid_velocity": ("solid", comp)}
         out.update({f"solid_{k}": ("solid",) for k in ("area", "J_min", "J_max")})
         for term in self.body_forces:
             dims = getattr(term, "frame_array_dims", None)
@@ -941,7 +1069,7 @@ class Model:
         """Fields written to each frame (numpy-convertible), with physical names."""
         d = self.derived(state, params)
         p_fluid = params.fluid.lambda_f * (state.rho_f / params.fluid.rho0 - 1.0)
-        pressure = -0.5 * (d["sxx"] + d["syy"])
+        pressure = self._mean_pressure(d)
         if self.projection is not None:
             # incompressible: the fluid pressure is the projection's, solved for a step of
             # the adaptive size from this state (its mean over the grid set to zero unless
@@ -953,21 +1081,47 @@ class Model:
                 p_fluid = p_fluid - jnp.mean(p_fluid)
             pc = jnp.pad(p_fluid, ((1, 0), (1, 0)), mode="edge")
             pressure = pressure + pc
-        out = dict(
-            u=state.v[0],
-            v=state.v[1],
-            rho_f=state.rho_f,
-            rho=d["rho"],
-            p_fluid=p_fluid,
-            pressure=pressure,
-            sigma_xx=d["sxx"],
-            sigma_xy=d["sxy"],
-            sigma_yy=d["syy"],
-        )
+        nd = self.ndim
+        out = {name: state.v[a] for a, name in enumerate("uvw"[:nd])}
+        out.update(rho_f=state.rho_f, rho=d["rho"], p_fluid=p_fluid, pressure=pressure)
+        for name in SYM_COMPONENTS[nd]:
+            out["sigma_" + name] = d["s" + name]
         if self.n_solids:
-            out.update(phi=state.phi, xi_x=state.xi[:, 0], xi_y=state.xi[:, 1],
-                       J=jnp.where(d["valid"], d["J"], jnp.nan))
+            out["phi"] = state.phi
+            for a, name in enumerate("xyz"[:nd]):
+                out["xi_" + name] = state.xi[:, a]
+            out["J"] = jnp.where(d["valid"], d["J"], jnp.nan)
         return out
+
+    def _mean_pressure(self, d):
+        """Minus the mean normal stress at the corners, -tr(sigma) / d."""
+        if self.ndim == 2:
+            return -0.5 * (d["sxx"] + d["syy"])
+        return -(d["sxx"] + d["syy"] + d["szz"]) / 3.0
+
+
+def _check_3d_support(model: Model) -> None:
+    """ValueError naming the first setting of a 3D model that the 3D step does not have yet.
+
+    The 3D step (issue 12) covers the compressible fluid with explicit viscosity, any
+    number of solids without anchors, and body forces written for 3D; the pieces below
+    are 2D-only so far."""
+    n = model.numerics
+    todo = []
+    if n.fluid_model != "compressible":
+        todo.append(f"numerics.fluid_model {n.fluid_model!r} (the 3D projection is not written yet)")
+    if n.viscosity != "explicit":
+        todo.append(f"numerics.viscosity {n.viscosity!r} (the 3D implicit viscous solve is not written yet)")
+    if n.band_force != "local":
+        todo.append(f"numerics.band_force {n.band_force!r}")
+    for s in model.solids:
+        if s.anchor is not None:
+            todo.append(f"the anchor of solid {s.name!r} ({type(s.anchor).__name__})")
+    for term in model.body_forces:
+        if getattr(term, "ndim", 2) != 3:
+            todo.append(f"the body force {type(term).__name__} (2D only; a 3D term sets ndim = 3)")
+    if todo:
+        raise ValueError("not available in 3D yet: " + "; ".join(todo))
 
 
 def _check_closed(boundary: Boundary) -> None:
