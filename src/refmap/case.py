@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from refmap.boundary import Boundary
+from refmap.boundary import AXIS_FACES, Boundary
 from refmap.grid import Grid
 from refmap.state import FluidParams, Numerics
 
@@ -35,7 +35,8 @@ class Case:
     boundary: Boundary = field(default_factory=Boundary)
     fluid: FluidParams = field(default_factory=FluidParams)
     numerics: Numerics = field(default_factory=Numerics)
-    gravity: tuple = (0.0, 0.0)
+    #: the body force per unit mass, one component per axis (None: zero)
+    gravity: tuple | None = None
     t_end: float = 1.0
     frames: int = 10
     picture_field: str = "pressure"
@@ -52,6 +53,9 @@ class Case:
 
     def __post_init__(self):
         from refmap.initial import InitialVelocityError, as_initial_velocity
+
+        if self.gravity is None:
+            object.__setattr__(self, "gravity", (0.0,) * getattr(self.grid, "ndim", 2))
 
         try:
             object.__setattr__(self, "initial_velocity", as_initial_velocity(self.initial_velocity))
@@ -84,8 +88,10 @@ class Case:
             bad(f"t_end must be a finite number > 0, got {self.t_end!r}")
         if not (isinstance(self.frames, int) and self.frames >= 1):
             bad(f"frames must be an integer >= 1, got {self.frames!r}")
-        if len(self.gravity) != 2 or not all(math.isfinite(float(g)) for g in self.gravity):
-            bad(f"gravity must be two finite numbers, got {self.gravity!r}")
+        nd = self.grid.ndim
+        if len(self.gravity) != nd or not all(math.isfinite(float(g)) for g in self.gravity):
+            bad(f"gravity must be {('two', 'three')[nd - 2]} finite numbers on a {nd}D grid, "
+                f"got {self.gravity!r}")
         from refmap.resources import check_memory
 
         check_memory(self)  # before any grid-sized array is made
@@ -104,17 +110,20 @@ class Case:
                 _check_closed(self.boundary)
             except ValueError as e:
                 bad(f"boundary: {e}")
-        X, Y = g.mesh("node")
-        h = g.h
-        covered = np.zeros(X.shape, dtype=bool)  # nodes inside some solid
+        Xn = g.mesh("node")
+        lows = (g.ax, g.ay, getattr(g, "az", None))[:nd]
+        highs = (g.bx, g.by, getattr(g, "bz", None))[:nd]
+        covered = np.zeros(Xn[0].shape, dtype=bool)  # nodes inside some solid
         for k, s in enumerate(self.solids):
             label = f"solids[{k}] ({s.name!r})"
+            if s.ndim != nd:
+                bad(f"{label}: the solid is {s.ndim}D (its law's dim) but the grid is {nd}D"
+                    + (" (build its law with dim=3, or law.with_dim(3))" if nd == 3 else ""))
             try:
                 s.law.validate()
             except ValueError as e:
                 bad(f"{label}: {e}")
-            xi_x, xi_y = s.initial_map(X, Y)
-            phi = np.asarray(s.shape(xi_x, xi_y))
+            phi = np.asarray(s.shape(*s.initial_map(*Xn)))
             inside = phi < 0
             covered |= inside
             if not inside.any():
@@ -125,37 +134,35 @@ class Case:
             # velocity segment with a normal component): nothing defines the map of material
             # entering from outside (measured: a disc at an inflow edge blew up by t = 2),
             # and a body leaving through an outflow left a few strained nodes behind.
-            rows = {
-                "left": inside[:2, :],
-                "right": inside[-2:, :],
-                "bottom": inside[:, :2],
-                "top": inside[:, -2:],
-            }
-            for ename, hits in rows.items():
-                edge = getattr(self.boundary, ename)
-                if edge == "periodic":
-                    continue
-                axis = 0 if ename in ("left", "right") else 1
-                hit = hits.any(axis=axis)  # per node along the edge
-                if axis == 0:
-                    along = (Y[0, :] - g.ay) / (g.by - g.ay)
-                else:
-                    along = (X[:, 0] - g.ax) / (g.bx - g.ax)
-                for seg in edge:
-                    on = (along >= seg.start) & ((along < seg.end) | (seg.end >= 1.0))
-                    through = seg.kind == "outflow" or (
-                        seg.kind == "velocity" and seg.velocity[axis] != 0.0
-                    )
-                    if through and (hit & on).any():
-                        xb = f"[{X[inside].min():.3g}, {X[inside].max():.3g}]"
-                        yb = f"[{Y[inside].min():.3g}, {Y[inside].max():.3g}]"
-                        dom = f"[{g.ax}, {g.bx}] x [{g.ay}, {g.by}]"
-                        bad(
-                            f"{label}: the shape reaches the {ename} edge where it is a "
-                            f"{seg.kind!r} segment with flow through it (x in {xb}, y in {yb}; "
-                            f"domain {dom}); a solid may touch wall, slip and tangential "
-                            "velocity edges only"
+            for axis, names in enumerate(AXIS_FACES[:nd]):
+                for ename, rows in zip(names, (slice(0, 2), slice(-2, None)), strict=True):
+                    edge = getattr(self.boundary, ename)
+                    if edge == "periodic":
+                        continue
+                    index = [slice(None)] * nd
+                    index[axis] = rows
+                    hits = inside[tuple(index)].any(axis=axis)  # per node of the face
+                    # segments run along the face's first tangential axis (whole faces in 3D)
+                    b = 1 if axis == 0 else 0
+                    along = (Xn[b] - lows[b]) / (highs[b] - lows[b])
+                    along = np.take(along, 0, axis=axis)
+                    for seg in edge:
+                        on = (along >= seg.start) & ((along < seg.end) | (seg.end >= 1.0))
+                        through = seg.kind == "outflow" or (
+                            seg.kind == "velocity" and seg.velocity[axis] != 0.0
                         )
+                        if through and (hits & on).any():
+                            ext = ", ".join(
+                                f"{'xyz'[c]} in [{Xn[c][inside].min():.3g}, {Xn[c][inside].max():.3g}]"
+                                for c in range(nd)
+                            )
+                            dom = " x ".join(f"[{lo}, {hi}]" for lo, hi in zip(lows, highs, strict=True))
+                            bad(
+                                f"{label}: the shape reaches the {ename} edge where it is a "
+                                f"{seg.kind!r} segment with flow through it ({ext}; "
+                                f"domain {dom}); a solid may touch wall, slip and tangential "
+                                "velocity edges only"
+                            )
             if inside.sum() < 4:
                 bad(f"{label}: only {int(inside.sum())} grid nodes inside; refine the grid (n={g.nx})")
             check = getattr(s.anchor, "check", None)
@@ -164,7 +171,6 @@ class Case:
                     check(g, inside)
                 except ValueError as e:
                     bad(f"{label}: {e}")
-            _ = h
         if not covered.all():  # a box filled with solid has no fluid to damp
             self._check_sound_damping()
             self._check_hydrostatic()
@@ -203,7 +209,7 @@ class Case:
         if waves:
             out["solid wave speed"] = max(waves)
         edge_speeds = [0.0]
-        for name in ("left", "right", "bottom", "top"):
+        for name in self.boundary.faces:
             e = getattr(self.boundary, name)
             if isinstance(e, str):
                 continue
@@ -217,7 +223,7 @@ class Case:
         if self.initial_velocity is not None:
             try:
                 v0 = np.asarray(self.initial_velocity_field(), dtype=float)
-                vmax = float(np.sqrt(v0[0] ** 2 + v0[1] ** 2).max())
+                vmax = float(np.sqrt(np.sum(v0**2, axis=0)).max())
             except (CaseError, TypeError, ValueError):
                 vmax = 0.0
             if vmax > 0:
@@ -225,11 +231,15 @@ class Case:
                 out["initial speed"] = vmax + (max(vs) if vs else 0.0)
         gmag = math.hypot(*(float(x) for x in self.gravity))
         if gmag > 0:
-            g = self.grid
-            out["free fall"] = math.sqrt(2.0 * gmag * max(g.bx - g.ax, g.by - g.ay))
+            out["free fall"] = math.sqrt(2.0 * gmag * max(self._extents()))
         if self.numerics.fluid_model == "incompressible" and len(out) > 1:
             del out["sound speed"]  # lambda_f is unused: an incompressible fluid has no sound
         return out
+
+    def _extents(self) -> tuple[float, ...]:
+        """The domain's length along each axis."""
+        g = self.grid
+        return tuple(hi - lo for lo, hi in ((g.ax, g.bx), (g.ay, g.by), (getattr(g, "az", 0.0), getattr(g, "bz", 0.0)))[: g.ndim])
 
     def hydrostatic_mach(self):
         """``(M, rho0, |g|, L, lambda_f)`` with M = rho0 |g| L / lambda_f, L the domain's
@@ -237,8 +247,8 @@ class Case:
         traced fluid parameters or an incompressible fluid."""
         if self.numerics.fluid_model == "incompressible":
             return None
-        gx, gy = (float(x) for x in self.gravity)
-        gmag = math.hypot(gx, gy)
+        gvec = [float(x) for x in self.gravity]
+        gmag = math.hypot(*gvec)
         if gmag == 0:
             return None
         fl = self.fluid
@@ -246,8 +256,7 @@ class Case:
             rho0, lam = float(fl.rho0), float(fl.lambda_f)
         except (TypeError, ValueError):
             return None
-        g = self.grid
-        L = (abs(gx) * (g.bx - g.ax) + abs(gy) * (g.by - g.ay)) / gmag  # height along g
+        L = sum(abs(gc) * e for gc, e in zip(gvec, self._extents(), strict=True)) / gmag  # height along g
         return rho0 * gmag * L / lam, rho0, gmag, L, lam
 
     def sound_damping_shortfall(self):
@@ -264,7 +273,7 @@ class Case:
             )
         except (TypeError, ValueError):  # traced or symbolic parameters: nothing to check
             return None
-        h = min(self.grid.dx, self.grid.dy)
+        h = self.grid.h
         need = 0.5 * c * h
         return None if nu >= need else (nu, need, c, h)
 
@@ -318,9 +327,10 @@ class Case:
         sc = self.velocity_scales()
         v0 = max(sc.get("boundary speed", 0.0), sc.get("initial solid speed", 0.0),
                  sc.get("initial speed", 0.0))
-        fake_model = SimpleNamespace(h=self.grid.h, numerics=replace(self.numerics, dt_fixed=None,
-                                                                     dt_max=None))
-        fake_state = SimpleNamespace(v=np.full((2, 1, 1), v0 / 2.0))
+        nd = self.grid.ndim
+        fake_model = SimpleNamespace(h=self.grid.h, ndim=nd,
+                                     numerics=replace(self.numerics, dt_fixed=None, dt_max=None))
+        fake_state = SimpleNamespace(v=np.full((nd,) + (1,) * nd, v0 / nd))
         params = Params(fluid=self.fluid, laws=tuple(s.law for s in self.solids),
                         gravity=tuple(float(x) for x in self.gravity))
         try:

@@ -27,6 +27,7 @@ refused.  On a GPU the device's free memory is the budget.
 
 from __future__ import annotations
 
+import math
 import os
 
 #: the interpreter, JAX, the compiled functions of a small run (measured: ~600 MiB at 128^2)
@@ -40,7 +41,7 @@ GiB = 2.0**30
 
 def estimate_memory(case) -> int:
     """Bytes a run of ``case`` needs, about (see the module docstring for the fit)."""
-    nodes = int(case.grid.nx) * int(case.grid.ny)
+    nodes = math.prod(int(n) for n in case.grid.shape())  # nx ny (nz): no 3D fit yet
     return int(BASE_BYTES + nodes * (BYTES_PER_NODE + len(case.solids) * BYTES_PER_SOLID_NODE))
 
 
@@ -90,10 +91,12 @@ def check_memory(case, available: tuple[int | None, str] | None = None) -> None:
     g = case.grid
     per_node = BYTES_PER_NODE + len(case.solids) * BYTES_PER_SOLID_NODE
     fit_nodes = max(0.0, (have - BASE_BYTES) / per_node)
-    fit_n = int((fit_nodes * g.nx / g.ny) ** 0.5)  # keep the aspect ratio
+    shape = g.shape()
+    # keep the aspect ratio: n = nx at the largest grid of this shape that fits
+    fit_n = int((fit_nodes * g.nx ** len(shape) / math.prod(shape)) ** (1.0 / len(shape)))
     hint = f"; at most about n = {fit_n} fits" if fit_n >= 16 else ""
     raise CaseError(
-        f"case {case.name!r}: a {g.nx} x {g.ny} grid with {len(case.solids)} solid(s) needs "
+        f"case {case.name!r}: a {' x '.join(str(n) for n in shape)} grid with {len(case.solids)} solid(s) needs "
         f"about {need / GiB:.3g} GiB of memory, more than the {have / GiB:.3g} GiB {where}"
         f"{hint}"
     )
