@@ -92,6 +92,13 @@ class Case:
         if len(self.gravity) != nd or not all(math.isfinite(float(g)) for g in self.gravity):
             bad(f"gravity must be {('two', 'three')[nd - 2]} finite numbers on a {nd}D grid, "
                 f"got {self.gravity!r}")
+        if nd == 3:
+            from refmap.model import check_3d_support
+
+            try:
+                check_3d_support(self.numerics, self.solids, () if self.contact is None else (self.contact,))
+            except ValueError as e:
+                bad(str(e))
         from refmap.resources import check_memory
 
         check_memory(self)  # before any grid-sized array is made

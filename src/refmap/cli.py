@@ -48,7 +48,7 @@ def show_cmd(
 @app.command("run")
 def run_cmd(
     scenario: str = typer.Argument(..., help="scenario name (see `refmap list`) or a case file (.toml)"),
-    n: int = typer.Option(None, "--n", help="grid cells per side (default 128, or the case file's)"),
+    n: int = typer.Option(None, "--n", help="grid cells per side (default 128 in 2D, 32 in 3D, or the case file's)"),
     t_end: float = typer.Option(None, "--t-end", help="end time (default: the scenario's)"),
     frames: int = typer.Option(None, "--frames", help="number of output frames"),
     out: Path = typer.Option(None, "--out", help="run folder (default runs/SCENARIO_N)"),
@@ -80,8 +80,8 @@ def run_cmd(
                                        "out": out, "movie": movie, "pictures": pictures})
             case, out_dir, movie, pictures = plan.case, plan.out_dir, plan.movie, plan.pictures
         else:
-            n = 128 if n is None else n
-            case = get_case(scenario, n)
+            case = get_case(scenario, n)  # n None: the scenario's default (128 in 2D, 32 in 3D)
+            n = case.grid.nx
             if t_end is not None:
                 case = case.replace(t_end=t_end)
             if frames is not None:

@@ -235,7 +235,7 @@ class Model:
         self.bc = BoundaryConditions(grid, self.boundary)
         self.h = grid.h
         if d == 3:
-            _check_3d_support(self)
+            check_3d_support(self.numerics, self.solids, self.body_forces)
         self.implicit_viscosity = (
             ImplicitViscosity(self, rtol=self.numerics.viscosity_rtol,
                               preconditioner=self.numerics.viscosity_preconditioner)
@@ -906,7 +906,10 @@ class Model:
             dt = jnp.where(short, rem, dt)
             lim = jnp.where(short, LIMIT_NAMES.index("output"), lim)
             s2 = self.step(s, params, dt)
-            speed = jnp.sqrt(jnp.max(s2.v[0] ** 2 + s2.v[1] ** 2))
+            v2 = s2.v[0] ** 2 + s2.v[1] ** 2
+            for a in range(2, self.ndim):
+                v2 = v2 + s2.v[a] ** 2
+            speed = jnp.sqrt(jnp.max(v2))
             ok2 = finite(s2) & (dt > 1e-14) & ~(speed > speed_limit)
             # report the last full step (the landing step is only a remainder)
             keep = short & (k > 0)
@@ -1100,13 +1103,13 @@ class Model:
         return -(d["sxx"] + d["syy"] + d["szz"]) / 3.0
 
 
-def _check_3d_support(model: Model) -> None:
-    """ValueError naming the first setting of a 3D model that the 3D step does not have yet.
+def check_3d_support(numerics: Numerics, solids, body_forces=()) -> None:
+    """ValueError naming the first settings of a 3D case that the 3D step does not have yet.
 
     The 3D step (issue 12) covers the compressible fluid with explicit viscosity, any
     number of solids without anchors, and body forces written for 3D; the pieces below
     are 2D-only so far."""
-    n = model.numerics
+    n = numerics
     todo = []
     if n.fluid_model != "compressible":
         todo.append(f"numerics.fluid_model {n.fluid_model!r} (the 3D projection is not written yet)")
@@ -1114,10 +1117,10 @@ def _check_3d_support(model: Model) -> None:
         todo.append(f"numerics.viscosity {n.viscosity!r} (the 3D implicit viscous solve is not written yet)")
     if n.band_force != "local":
         todo.append(f"numerics.band_force {n.band_force!r}")
-    for s in model.solids:
+    for s in solids:
         if s.anchor is not None:
             todo.append(f"the anchor of solid {s.name!r} ({type(s.anchor).__name__})")
-    for term in model.body_forces:
+    for term in body_forces:
         if getattr(term, "ndim", 2) != 3:
             todo.append(f"the body force {type(term).__name__} (2D only; a 3D term sets ndim = 3)")
     if todo:

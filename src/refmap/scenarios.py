@@ -117,13 +117,18 @@ def rotor(n: int = 128) -> Case:
     )
 
 
-def get_case(name: str, n: int = 128) -> Case:
+def get_case(name: str, n: int | None = 128) -> Case:
+    """The built-in scenario ``name`` with ``n`` cells per side (None: the scenario's own
+    default, 128 in 2D and 32 in 3D)."""
     if name not in SCENARIOS:
         raise CaseError(f"unknown scenario {name!r}; available: {', '.join(sorted(SCENARIOS))}")
+    if n is None:
+        return SCENARIOS[name]()
     if not isinstance(n, int) or n < 16:
         raise CaseError(f"grid size n must be an integer >= 16, got {n!r}")
     return SCENARIOS[name](n)
 
 
 # the several-solid scenarios register themselves on import (kept in their own module)
+from refmap import scenarios_3d as _scenarios_3d  # noqa: E402,F401
 from refmap import scenarios_fssi as _scenarios_fssi  # noqa: E402,F401

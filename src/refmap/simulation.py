@@ -240,7 +240,7 @@ class Simulation:
         if self.progress:
             from tqdm.auto import tqdm
 
-            bar = tqdm(total=float(case.t_end), unit="t", desc=f"{case.name} {case.grid.nx}x{case.grid.ny}",
+            bar = tqdm(total=float(case.t_end), unit="t", desc=f"{case.name} {'x'.join(str(m) for m in case.grid.shape())}",
                        bar_format="{l_bar}{bar}| t={n:.3f}/{total:.3f} [{elapsed}<{remaining}{postfix}]",
                        initial=float(state.t))
         try:
@@ -407,8 +407,9 @@ class Simulation:
         sim = cls(case, run_dir, progress=progress, pictures=pictures, movie=movie,
                   command=command, checkpoint_every=checkpoint_every, devices=devices)
         g = case.grid
-        want = {"v": (2, g.nx, g.ny), "rho_f": (g.nx, g.ny), "xi": (sim.model.n_solids, 2, g.nx, g.ny),
-                "phi": (sim.model.n_solids, g.nx, g.ny)}
+        nd, gshape = g.ndim, g.shape()
+        want = {"v": (nd, *gshape), "rho_f": gshape, "xi": (sim.model.n_solids, nd, *gshape),
+                "phi": (sim.model.n_solids, *gshape)}
         for name, shape in want.items():
             if tuple(getattr(state, name).shape) != shape:
                 raise CheckpointError(
@@ -650,8 +651,8 @@ def _check_start_state(state, case: Case, model):
         bad(f"must be a refmap.state.State, got {type(state).__name__}")
     g = case.grid
     n = model.n_solids
-    want = {"v": (2, g.nx, g.ny), "rho_f": (g.nx, g.ny), "xi": (n, 2, g.nx, g.ny),
-            "phi": (n, g.nx, g.ny)}
+    nd, gshape = g.ndim, g.shape()
+    want = {"v": (nd, *gshape), "rho_f": gshape, "xi": (n, nd, *gshape), "phi": (n, *gshape)}
     arrays = {}
     for name, shape in want.items():
         try:
@@ -663,7 +664,7 @@ def _check_start_state(state, case: Case, model):
         if a.shape != shape:
             what = (f" ({a.shape[0]} solid(s) in the state, {n} in the case)"
                     if name in ("xi", "phi") and a.ndim >= 1 and a.shape[0] != n else "")
-            bad(f"{name} has shape {a.shape}, the case needs {shape} (grid {g.nx} x {g.ny}, "
+            bad(f"{name} has shape {a.shape}, the case needs {shape} (grid {' x '.join(str(m) for m in gshape)}, "
                 f"{n} solid(s)){what}")
         if not np.all(np.isfinite(a)):
             idx = tuple(int(k[0]) for k in np.nonzero(~np.isfinite(a)))

@@ -1,0 +1,71 @@
+"""Built-in 3D scenarios (issue 12): the same ``refmap run NAME --n N`` as in 2D.
+
+Importing this module registers them with :func:`refmap.scenarios.scenario`:
+
+* ``sphere_relax`` -- a sphere released from an isochoric stretch in a closed box: it
+  springs back, overshoots and rings down in the viscous fluid, sending out sound.
+* ``sphere_cavity`` -- a soft sphere in a lid-driven cube (the 2D lid-driven cavity's
+  set-up, ``validation/lid_cavity.py``, extruded: Re = 100, a neo-Hookean solid as soft as
+  the fluid's dynamic pressure, G = 0.1 rho U^2).
+
+``n`` is the number of cells along each axis.  The 3D step has the compressible fluid and
+explicit viscosity only so far, and no contact or anchors (docs/method.md, "Three
+dimensions"), so the scenarios with several bodies, settling and pivots are not here yet.
+"""
+
+from __future__ import annotations
+
+import math
+
+from refmap.boundary import Boundary, Segment
+from refmap.case import Case
+from refmap.geometry import Sphere
+from refmap.grid import Grid3D
+from refmap.materials import LogNeoHookean, NeoHookean
+from refmap.model import Solid
+from refmap.scenarios import DESCRIPTIONS, scenario
+from refmap.state import FluidParams, Numerics
+
+CLOSED_BOX = dict(back="wall", front="wall")
+
+
+@scenario("sphere_relax", "3D: a sphere released from a 25 % isochoric stretch in a closed box rings down")
+def sphere_relax(n: int = 32) -> Case:
+    # F = A^-1 = diag(1.25, 1/sqrt(1.25), 1/sqrt(1.25)): stretched along x, J = 1; the
+    # thesis's solid (G = kappa = 10) and fluid, as the 2D "circle"
+    a = 1.25
+    A = ((1.0 / a, 0.0, 0.0), (0.0, math.sqrt(a), 0.0), (0.0, 0.0, math.sqrt(a)))
+    solid = Solid(shape=Sphere(center=(0.0, 0.0, 0.0), radius=0.6),
+                  law=NeoHookean(G=10.0, kappa=10.0, rho0=1.0, dim=3), strain=A, name="sphere")
+    return Case(
+        name="sphere_relax",
+        grid=Grid3D(n, n, n, -1.5, 1.5, -1.5, 1.5, -1.5, 1.5),
+        solids=(solid,),
+        boundary=Boundary(**CLOSED_BOX),
+        fluid=FluidParams(),
+        t_end=2.0,
+        frames=20,
+        description=DESCRIPTIONS["sphere_relax"],
+    )
+
+
+@scenario("sphere_cavity", "3D: a soft sphere carried round a lid-driven cube (Re = 100)")
+def sphere_cavity(n: int = 32) -> Case:
+    h = 1.0 / n
+    c = 10.0  # sound speed: lid Mach number 0.1
+    solid = Solid(shape=Sphere(center=(0.6, 0.5, 0.5), radius=0.2),
+                  law=LogNeoHookean(G=0.1, kappa=10.0, rho0=1.0, dim=3), name="sphere")
+    lid = Segment("velocity", velocity=(1.0, 0.0, 0.0))
+    return Case(
+        name="sphere_cavity",
+        grid=Grid3D(n, n, n, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0),
+        solids=(solid,),
+        boundary=Boundary(top=(lid,), **CLOSED_BOX),
+        # viscosity 0.01 (Re = 100) in fluid and solid; the bulk viscosity c h damps the
+        # shortest sound waves (the 2D cavity's choice, docs/validation_lid_cavity.md)
+        fluid=FluidParams(rho0=1.0, lambda_f=c * c, eta=0.0, extra_viscosity=0.01, bulk_viscosity=c * h),
+        numerics=Numerics(cfl=0.5),
+        t_end=4.0,
+        frames=40,
+        description=DESCRIPTIONS["sphere_cavity"],
+    )

@@ -1,0 +1,205 @@
+"""The 3D step: exact checks (rigid motion, uniform strain, rest, sound) and the 2D limit.
+
+Grids are small (<= 24^3) so that the file runs in CI's default set.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from refmap.boundary import Boundary
+from refmap.geometry import Cylinder, Disc, Ellipsoid, Sphere
+from refmap.grid import Grid, Grid3D
+from refmap.materials import LogNeoHookean, NeoHookean
+from refmap.model import Model, Solid
+from refmap.state import FluidParams, Numerics
+
+PERIODIC_3D = dict(left="periodic", right="periodic", bottom="periodic", top="periodic",
+                   back="periodic", front="periodic")
+WALLS_3D = dict(back="wall", front="wall")
+
+
+def _rotation(axis, theta):
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * K @ K
+
+
+def _rigid_ellipsoid_model(n=24, periodic=False, shift=(0.07, -0.11, 0.05)):
+    """An ellipsoid moved rigidly: xi(x) = R^T (x - s) (R a rotation about a skew axis)."""
+    A = _rotation((1.0, 2.0, 0.5), 0.6).T
+    cc = np.linalg.solve(np.eye(3) - A, -A @ np.asarray(shift))
+    shape = Ellipsoid(center=(0.0, 0.0, 0.0), semi_axes=(0.4, 0.3, 0.25), angle=0.3)
+    solid = Solid(shape=shape, law=NeoHookean(G=10.0, kappa=10.0, dim=3),
+                  strain=tuple(map(tuple, A)), strain_center=tuple(cc))
+    bnd = Boundary(**(PERIODIC_3D if periodic else WALLS_3D))
+    model = Model(Grid3D(n, n, n, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0), (solid,), bnd)
+    return model, model.default_params()
+
+
+def _band_stress(model, params, state):
+    d = jax.jit(model.derived)(state, params)
+    sig = np.asarray(d["sigma_s"][0])
+    valid = np.asarray(d["valid"][0])
+    return np.abs(sig[valid]).max(), valid.sum(), np.asarray(d["phic"][0])[valid].max()
+
+
+def test_rigid_motion_is_stress_free_in_solid_and_band_3d():
+    model, params = _rigid_ellipsoid_model()
+    state = model.initial_state(params)
+    state = state.replace(xi=jax.jit(model.extrapolate)(state.xi, state.phi))
+    smax, count, reach = _band_stress(model, params, state)
+    assert count > 1000
+    assert reach > 4.0 * model.h  # the check covers the extrapolated band, not only the solid
+    assert smax < 1e-9
+
+
+def test_translating_body_in_periodic_box_stays_stress_free_3d():
+    """Uniform motion of fluid and solid in a triply periodic box: sigma stays 0."""
+    model, params = _rigid_ellipsoid_model(n=20, periodic=True)
+    state = model.initial_state(params)
+    U = jnp.array([0.37, -0.21, 0.29])
+    state = state.replace(v=jnp.broadcast_to(U[:, None, None, None], state.v.shape))
+    state = jax.jit(lambda s: model.run_steps(s, params, 12))(state)
+    smax, count, _ = _band_stress(model, params, state)
+    assert count > 300
+    assert smax < 1e-8
+    assert np.allclose(state.v, U[:, None, None, None], atol=1e-10)
+    assert np.allclose(state.rho_f, 1.0, atol=1e-12)
+
+
+def test_strained_body_has_the_law_stress_3d():
+    A = np.array([[0.9, 0.2, 0.05], [0.0, 1.1, -0.1], [0.1, 0.0, 0.95]])
+    law = LogNeoHookean(G=10.0, kappa=10.0, dim=3)
+    solid = Solid(shape=Sphere(radius=0.5), law=law, strain=tuple(map(tuple, A)))
+    model = Model(Grid3D(16, 16, 16, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0), (solid,), Boundary(**WALLS_3D))
+    params = model.default_params()
+    d = model.derived(model.initial_state(params), params)
+    expected = np.asarray(law.stress(jnp.asarray(np.linalg.inv(A))))
+    sig = np.asarray(d["sigma_s"][0])
+    inside = np.asarray(d["phic"][0]) < 0
+    assert inside.sum() > 100
+    assert np.allclose(sig[inside], expected, atol=1e-10)
+    J = np.asarray(d["J"][0])[inside]
+    assert np.allclose(J, 1.0 / np.linalg.det(A), rtol=1e-12)
+
+
+def test_fluid_at_rest_stays_at_rest_3d():
+    model = Model(Grid3D(10, 10, 10), (), Boundary(**WALLS_3D))
+    params = model.default_params()
+    s = jax.jit(lambda s: model.run_steps(s, params, 5))(model.initial_state(params))
+    assert np.abs(np.asarray(s.v)).max() == 0.0
+    assert np.allclose(s.rho_f, 1.0)
+
+
+def test_fluid_sound_wave_speed_along_z():
+    """A standing acoustic mode along z oscillates at omega = k sqrt(lambda_f / rho0):
+    rho' = eps cos(k z) crosses zero first at t0 = pi / (2 omega) = 0.5 (c = 2, k = pi / 2);
+    the 3D twin of the 2D test along x (dispersion error ~1e-3 at k h = 0.05)."""
+    g = Grid3D(8, 8, 128, 0.0, 0.25, 0.0, 0.25, 0.0, 4.0)
+    fl = FluidParams(rho0=1.0, lambda_f=4.0, eta=0.01, extra_viscosity=0.0)
+    model = Model(g, (), Boundary(**PERIODIC_3D), Numerics(cfl=0.2))
+    params = model.default_params(fl)
+    s = model.initial_state(params)
+    Z = g.mesh("node")[2]
+    k = 2 * np.pi / 4.0
+    mode = np.cos(k * Z)
+    s = s.replace(rho_f=jnp.asarray(1.0 + 1e-4 * mode))
+    adv = jax.jit(model.advance)
+
+    def amplitude(T):
+        s2, info = adv(s, params, T)
+        assert bool(info["ok"])
+        return np.sum((np.asarray(s2.rho_f) - 1.0) * mode) / np.sum(mode * mode)
+
+    a1, a2 = amplitude(0.45), amplitude(0.55)
+    assert a1 > 0 > a2
+    t0 = 0.45 + 0.1 * a1 / (a1 - a2)
+    assert np.pi / (2 * t0) / k == pytest.approx(2.0, rel=0.01)
+
+
+def test_z_invariant_3d_run_matches_the_2d_run():
+    """A strained disc (2D, plane strain) and the same strained cylinder, infinitely long
+    along a periodic z (3D, 8 layers), follow the same motion: in 3D every z difference
+    of a z-invariant field is exactly 0 and the 3D laws restricted to F_zz = 1 are the
+    plane-strain 2D ones, so the two runs differ only by round-off (the 3D averages sum 8
+    corners instead of 4, the 3D extrapolation takes more sweeps).  Tolerance: relative
+    1e-6 of each field's scale after 15 steps of a fixed dt."""
+    n = 32
+    A2 = np.array([[1.1, 0.15], [0.0, 0.92]])
+    A3 = np.eye(3)
+    A3[:2, :2] = A2
+    c2 = (0.1, 0.0)
+    law = NeoHookean(G=5.0, kappa=5.0)
+    s2 = Solid(shape=Disc(center=c2, radius=0.6), law=law, strain=tuple(map(tuple, A2)), strain_center=c2)
+    s3 = Solid(shape=Cylinder(center=(*c2, 0.0), radius=0.6, half_length=100.0), law=law.with_dim(3),
+               strain=tuple(map(tuple, A3)), strain_center=(*c2, 0.0))
+    h = 2.0 / n
+    m2 = Model(Grid(n, n, -1.0, 1.0, -1.0, 1.0), (s2,), Boundary())
+    m3 = Model(Grid3D(n, n, 8, -1.0, 1.0, -1.0, 1.0, 0.0, 8 * h), (s3,),
+               Boundary(back="periodic", front="periodic"))
+    p2, p3 = m2.default_params(), m3.default_params()
+    dt = 0.2 * m2.time_step(m2.initial_state(p2), p2)[0]
+    run2 = jax.jit(lambda s: jax.lax.fori_loop(0, 15, lambda i, s: m2.step(s, p2, dt), s))
+    run3 = jax.jit(lambda s: jax.lax.fori_loop(0, 15, lambda i, s: m3.step(s, p3, dt), s))
+    a = run2(m2.initial_state(p2))
+    b = run3(m3.initial_state(p3))
+    # z-invariant
+    for f in (b.v, b.rho_f, b.xi, b.phi):
+        f = np.asarray(f)
+        assert np.abs(f - f[..., :1]).max() <= 1e-12 * max(np.abs(f).max(), 1.0)
+    assert np.abs(np.asarray(b.v[2])).max() < 1e-12
+    for name, f2, f3 in (("v", a.v, b.v[:2]), ("rho_f", a.rho_f, b.rho_f), ("phi", a.phi, b.phi),
+                         ("xi", a.xi, b.xi[:, :2])):
+        f2 = np.asarray(f2)
+        f3 = np.asarray(f3)[..., 0]
+        scale = max(np.abs(f2).max(), 1e-3)
+        assert np.abs(f3 - f2).max() <= 1e-6 * scale, name
+    assert np.abs(np.asarray(a.v)).max() > 1e-3  # it moved
+
+
+def test_sheared_sphere_relaxes_in_a_closed_box():
+    """A sphere released from an isochoric shear in a closed box: the step stays finite, the
+    elastic energy is released into motion and damped, the fluid mass is kept to the
+    scheme's (advective, not conservative) accuracy."""
+    A = np.array([[1.0, 0.25, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    solid = Solid(shape=Sphere(radius=0.45), law=NeoHookean(G=5.0, kappa=5.0, dim=3),
+                  strain=tuple(map(tuple, A)))
+    model = Model(Grid3D(16, 16, 16, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0), (solid,), Boundary(**WALLS_3D))
+    params = model.default_params()
+    s0 = model.initial_state(params)
+    d0 = model.diagnostics(s0, params)
+    s1, info = jax.jit(model.advance)(s0, params, 0.3)
+    assert bool(info["ok"])
+    d1 = model.diagnostics(s1, params)
+    e0 = float(d0["elastic_energy"] + d0["kinetic_energy"])
+    e1 = float(d1["elastic_energy"] + d1["kinetic_energy"])
+    assert float(d0["elastic_energy"]) > 0
+    assert float(d1["kinetic_energy"]) > 1e-3 * e0  # it moved
+    assert e1 < e0  # viscous: no energy gained
+    assert float(d1["fluid_mass"]) == pytest.approx(float(d0["fluid_mass"]), rel=2e-2)
+    row = d1["solids"][0]
+    assert {"centroid_z", "velocity_z"} <= set(row)
+    assert abs(float(row["centroid_z"])) < 1e-10  # the shear in the x-y plane keeps z -> -z
+
+
+def test_3d_settings_not_yet_available_are_named():
+    solid = Solid(shape=Sphere(radius=0.4), law=NeoHookean(G=1.0, kappa=1.0, dim=3))
+    g = Grid3D(8, 8, 8)
+    with pytest.raises(ValueError, match="fluid_model 'incompressible'"):
+        Model(g, (solid,), Boundary(**WALLS_3D), Numerics(fluid_model="incompressible"))
+    with pytest.raises(ValueError, match="viscosity 'implicit'"):
+        Model(g, (solid,), Boundary(**WALLS_3D), Numerics(viscosity="implicit"))
+    with pytest.raises(ValueError, match="is 2D"):  # a plane-strain law on a 3D shape
+        Solid(shape=Sphere(radius=0.4), law=NeoHookean(G=1.0, kappa=1.0))
+    with pytest.raises(ValueError, match="3 finite numbers"):
+        Solid(shape=Sphere(radius=0.4), law=NeoHookean(G=1.0, kappa=1.0, dim=3), velocity=(1.0, 0.0))
+    with pytest.raises(ValueError, match="grid is 3D"):
+        Model(g, (Solid(shape=Disc(radius=0.4), law=NeoHookean(G=1.0, kappa=1.0)),), Boundary(**WALLS_3D))
+    with pytest.raises(ValueError, match="3 components"):
+        Model(g, (solid,), Boundary(**WALLS_3D)).default_params(gravity=(0.0, -1.0))
