@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -460,3 +461,175 @@ def test_2d_caller_attr_named_nz_stays_2d(tmp_path):
     _, got, attrs = read_frame(tmp_path / "r" / "frames" / "frame_00000.h5")
     assert got["u"].shape == X.shape and grid_from_attrs(attrs) == GRID2
     assert open_run(tmp_path / "r")["u"].dims == ("time", "x", "y")
+
+
+# ---------------------------------------------------------------------- 3D pictures
+def _is_png(p) -> bool:
+    return p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plot_field_draws_the_chosen_plane():
+    from matplotlib.contour import ContourSet
+    from matplotlib.figure import Figure
+
+    from refmap.io import plot_field
+
+    g = GRID3
+    f = fields3d(0)
+    z = g.axes("node")[2]
+    # default: the middle z plane; nz = 8 nodes -> index 3 (of 0..7)
+    ax = Figure().add_subplot()
+    m = plot_field(ax, g, f["u"], None, f["phi"], title="u", velocity=(f["u"], f["v"], f["w"]))
+    np.testing.assert_array_equal(np.asarray(m.get_array()), f["u"][:, :, 3])
+    assert ax.get_title() == f"u,  $z = {z[3]:.4g}$"
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("$x$", "$y$")
+    assert ax.get_xlim() == (g.ax, g.bx) and ax.get_ylim() == (g.ay, g.by)
+    # both spheres cross that plane: two interface contours at level 0
+    sets = [c for c in ax.collections if isinstance(c, ContourSet)]
+    assert len(sets) == 2 and all(list(c.levels) == [0.0] for c in sets)
+    # a corner field: 9 corner planes -> the middle one, index 4, at the centre of the box
+    ax = Figure().add_subplot()
+    m = plot_field(ax, g, f["sigma_xz"])
+    assert np.asarray(m.get_array()).shape == (g.nx + 1, g.ny + 1)  # Gouraud: point values
+    np.testing.assert_array_equal(np.asarray(m.get_array()), f["sigma_xz"][:, :, 4])
+    assert ax.get_title() == f"$z = {0.5 * (g.az + g.bz):.4g}$"
+    # an x plane by index (negative from the end): plot axes y across, z up
+    ax = Figure().add_subplot()
+    m = plot_field(ax, g, f["u"], slice_axis="x", slice_index=-1)
+    np.testing.assert_array_equal(np.asarray(m.get_array()), f["u"][-1])
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("$y$", "$z$")
+    assert ax.get_xlim() == (g.ay, g.by) and ax.get_ylim() == (g.az, g.bz)
+    # a y plane by coordinate: the nearest node plane
+    y = g.axes("node")[1]
+    ax = Figure().add_subplot()
+    m = plot_field(ax, g, f["u"], slice_axis="y", slice_at=y[5] + 0.4 * g.dy)
+    np.testing.assert_array_equal(np.asarray(m.get_array()), f["u"][:, 5, :])
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("$x$", "$z$")
+    with pytest.raises(ValueError, match="slice_axis"):
+        plot_field(Figure().add_subplot(), g, f["u"], slice_axis="q")
+    with pytest.raises(ValueError, match="outside"):
+        plot_field(Figure().add_subplot(), g, f["u"], slice_index=g.nz)
+    with pytest.raises(ValueError, match="2D"):
+        plot_field(Figure().add_subplot(), GRID2, GRID2.mesh("node")[0], slice_index=1)
+
+
+def test_slice_pngs(run3, tmp_path):
+    from refmap.io import save_frame_png, save_panel_png
+
+    run_dir, written = run3
+    f = written[1]
+    p = save_frame_png(
+        tmp_path / "u.png",
+        GRID3,
+        0.375,
+        "u",
+        f["u"],
+        "node",
+        f["phi"],
+        blur_edges=True,
+        velocity=(f["u"], f["v"], f["w"]),
+    )
+    assert p.stat().st_size > 5000 and _is_png(p)
+    p2 = save_frame_png(tmp_path / "s.png", GRID3, 0.1, "J", f["J"][1], slice_axis="y")
+    assert p2.stat().st_size > 5000 and _is_png(p2)
+    # panels from open_run, as Simulation.make_pictures builds them
+    ds = open_run(run_dir)
+    panels = [
+        (float(ds.time[i]), ds["sigma_yy"].isel(time=i).values, ds["phi"].isel(time=i).values)
+        for i in range(ds.sizes["time"])
+    ]
+    p3 = save_panel_png(tmp_path / "panel.png", GRID3, panels, "sigma_yy", "corner", ncols=2)
+    assert p3.stat().st_size > 5000 and _is_png(p3)
+
+
+def test_level_set_triangles_sphere():
+    """A sphere's triangulated zero set: vertices on the sphere, closed and consistently
+    oriented (every edge used once in each direction), outward, enclosing its volume."""
+    from refmap.io import level_set_triangles
+
+    g = Grid3D(24, 22, 20, -1.0, 1.4, -1.1, 1.1, -0.9, 1.1)
+    X, Y, Z = g.mesh("node")
+    c, r = np.array([0.15, 0.05, 0.1]), 0.7
+    phi = np.sqrt((X - c[0]) ** 2 + (Y - c[1]) ** 2 + (Z - c[2]) ** 2) - r
+    tris = level_set_triangles(phi, g)
+    assert tris.shape[1:] == (3, 3) and len(tris) > 500
+    assert np.abs(np.linalg.norm(tris - c, axis=-1) - r).max() < 0.1 * g.h
+    # closed and consistently oriented
+    key = np.round(tris * 1e8).astype(np.int64)
+    edges = np.concatenate([key[:, [0, 1]], key[:, [1, 2]], key[:, [2, 0]]]).reshape(-1, 6)
+    directed = {tuple(e) for e in edges.tolist()}
+    assert len(directed) == len(edges)  # no directed edge twice
+    assert all((e[3:] + e[:3]) in directed for e in directed)  # each has its reverse
+    # outward normals: the divergence theorem gives + the volume
+    vol = np.einsum("kd,kd->k", tris[:, 0], np.cross(tris[:, 1], tris[:, 2])).sum() / 6.0
+    assert vol == pytest.approx(4.0 / 3.0 * np.pi * r**3, rel=0.02)
+    # nothing where phi keeps one sign; NaN cells are left out
+    assert level_set_triangles(phi + 5.0, g).shape == (0, 3, 3)
+    holed = phi.copy()
+    holed[12:, :, :] = np.nan
+    assert 0 < len(level_set_triangles(holed, g)) < len(tris)
+
+
+def test_surface_png(tmp_path):
+    from refmap.io import save_surface_png
+
+    f = fields3d(0)
+    p = save_surface_png(tmp_path / "surf.png", f["phi"], GRID3, time=0.25)
+    assert p.stat().st_size > 5000 and _is_png(p)
+    one = save_surface_png(tmp_path / "pics" / "one.png", f["phi"][0], GRID3, title="ball")
+    assert one.stat().st_size > 5000 and _is_png(one)
+    # a solid without an interface is left out, not an error
+    none = np.stack([f["phi"][0], f["phi"][1] + 10.0])
+    assert _is_png(save_surface_png(tmp_path / "none.png", none, GRID3))
+    with pytest.raises(ValueError, match="Grid3D"):
+        save_surface_png(tmp_path / "x.png", np.zeros((10, 9)), GRID2)
+
+
+def test_derived_fields_3d(run3):
+    from refmap.io import derived_field
+
+    run_dir, written = run3
+    ds = open_run(run_dir)
+    f = written[1]
+    speed = derived_field(ds, "speed")
+    assert speed.dims == ("time", "x", "y", "z")
+    np.testing.assert_allclose(
+        speed.isel(time=1).values, np.sqrt(f["u"] ** 2 + f["v"] ** 2 + f["w"] ** 2), rtol=1e-14
+    )
+    g = GRID3
+    X, Y, Z = g.mesh("node")
+    om = 0.7
+    about_z = {"u": -om * Y, "v": om * X, "w": 0 * X}
+    about_x = {"u": 0 * X, "v": -om * Z, "w": om * Y}
+    for rot in (about_z, about_x):
+        np.testing.assert_allclose(derived_field(rot, "vorticity", grid=g), 2 * om, rtol=1e-12)
+    Xc, _, _ = g.mesh("corner")
+    zero = 0 * Xc
+    uniaxial = {n: zero for n in STRESS} | {"sigma_xx": -3.0 + zero}
+    np.testing.assert_allclose(derived_field(uniaxial, "von_mises", grid=g), 3.0, rtol=1e-14)
+    shear = {n: zero for n in STRESS} | {"sigma_yz": 2.0 + zero}
+    np.testing.assert_allclose(
+        derived_field(shear, "von_mises", grid=g), 2.0 * np.sqrt(3.0), rtol=1e-14
+    )
+
+
+def _ffmpeg_available() -> bool:
+    try:
+        import imageio_ffmpeg
+
+        return Path(imageio_ffmpeg.get_ffmpeg_exe()).exists()
+    except Exception:
+        return False
+
+
+@pytest.mark.skipif(not _ffmpeg_available(), reason="imageio-ffmpeg has no ffmpeg binary here")
+def test_movie_3d(run3, tmp_path):
+    from refmap.io import make_movie
+
+    run_dir, _ = run3
+    out = make_movie(run_dir, "u", tmp_path / "u.mp4", fps=5, velocity=True, blur_edges=True)
+    data = out.read_bytes()
+    assert len(data) > 0 and data[4:8] == b"ftyp"
+    out2 = make_movie(run_dir, "J", tmp_path / "j.mp4", solid=1, slice_axis="x", slice_index=2)
+    assert out2.stat().st_size > 0
+    assert not list(tmp_path.glob(".*partial*"))
