@@ -633,3 +633,29 @@ def test_movie_3d(run3, tmp_path):
     out2 = make_movie(run_dir, "J", tmp_path / "j.mp4", solid=1, slice_axis="x", slice_index=2)
     assert out2.stat().st_size > 0
     assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_reopened_3d_writer_keeps_the_xdmf(run3):
+    """A resumed run (refmap.checkpoint.reopen_run_writer) lists the kept 3D frames again,
+    velocity included, and goes on writing 3D frames."""
+    from refmap.checkpoint import reopen_run_writer
+
+    def attributes(path):  # {frame: {name: XML}}; the reopened writer lists them by name
+        frames = ET.parse(path).getroot().find("Domain/Grid").findall("Grid")
+        return {
+            fr.get("Name"): {a.get("Name"): ET.tostring(a) for a in fr.findall("Attribute")}
+            for fr in frames
+        }
+
+    run_dir, _ = run3
+    before = attributes(run_dir / "run.xdmf")
+    w = reopen_run_writer(run_dir, GRID3, next_frame=2, diag_rows=2)
+    assert attributes(run_dir / "run.xdmf") == before
+    w.write_frame(2, 0.5, fields3d(2), diagnostics=diags3d(2))
+    w.close()
+    ds = open_run(run_dir)
+    assert ds.sizes["time"] == 3
+    np.testing.assert_array_equal(ds["u"].isel(time=2).values, fields3d(2)["u"])
+    root = ET.parse(run_dir / "run.xdmf").getroot()
+    last = root.find("Domain/Grid").findall("Grid")[-1]
+    assert "velocity" in [a.get("Name") for a in last.findall("Attribute")]
