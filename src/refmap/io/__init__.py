@@ -13,16 +13,23 @@ Reading::
     df = open_diagnostics("runs/disc")    # pandas.DataFrame
     w = derived_field(ds, "vorticity")
     make_movie("runs/disc", "vorticity", "runs/disc/vorticity.mp4")
+
+A run on a :class:`~refmap.grid.Grid3D` is written and read the same way (arrays
+``[i, j, k]``, a 3DCoRectMesh in run.xdmf); its pictures and movies show a plane of the
+field (``slice_axis=``, ``slice_index=``, ``slice_at=``; default the middle z plane), and
+``save_surface_png`` draws the solids' interfaces in 3D.
 """
 
 from refmap.io._common import grid_from_attrs
 from refmap.io.pictures import (
     DERIVED_FIELDS,
     derived_field,
+    level_set_triangles,
     make_movie,
     plot_field,
     save_frame_png,
     save_panel_png,
+    save_surface_png,
 )
 from refmap.io.reader import list_frames, open_diagnostics, open_run, read_frame, read_metadata
 from refmap.io.writer import RunWriter
@@ -32,6 +39,7 @@ __all__ = [
     "RunWriter",
     "derived_field",
     "grid_from_attrs",
+    "level_set_triangles",
     "list_frames",
     "make_movie",
     "open_diagnostics",
@@ -41,4 +49,5 @@ __all__ = [
     "read_metadata",
     "save_frame_png",
     "save_panel_png",
+    "save_surface_png",
 ]

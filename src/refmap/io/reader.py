@@ -5,10 +5,10 @@
 * :func:`open_diagnostics` - diagnostics.csv -> ``pandas.DataFrame``;
 * :func:`read_metadata` - metadata.json -> dict.
 
-Arrays come back indexed ``[i, j]`` (i along x) like the solver's, whatever the order on
-disk (see :mod:`refmap.io.writer`).  A run can be read while it is still being written:
-frames are moved into place atomically, and files that cannot be read (truncated, corrupt)
-are skipped with a warning rather than failing the whole read.
+Arrays come back indexed ``[i, j]`` (i along x) like the solver's, ``[i, j, k]`` for a 3D
+run, whatever the order on disk (see :mod:`refmap.io.writer`).  A run can be read while it is
+still being written: frames are moved into place atomically, and files that cannot be read
+(truncated, corrupt) are skipped with a warning rather than failing the whole read.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import h5py
 import numpy as np
 import xarray as xr
 
-from refmap.grid import Grid
+from refmap.grid import Grid, Grid3D
 from refmap.io._common import (
     DIAGNOSTICS_FILE,
     DIAGNOSTICS_GROUP,
@@ -31,8 +31,10 @@ from refmap.io._common import (
     FRAMES_DIR,
     METADATA_FILE,
     TMP_SUFFIX,
+    frame_ndim,
     grid_attrs,
     grid_from_attrs,
+    to_disk,
     to_json,
 )
 
@@ -54,8 +56,9 @@ def read_frame(path: str | os.PathLike) -> tuple[float, dict[str, np.ndarray], d
     """Read one frame file.
 
     Returns ``(time, fields, attrs)``: ``fields`` maps each field name to a float64 array
-    indexed ``[i, j]`` (per-solid fields ``[s, i, j]``); ``attrs`` holds the file attributes
-    (time, index, the grid keys nx, ny, ax, bx, ay, by, dx, dy, and whatever extra attrs the
+    indexed ``[i, j]`` (per-solid fields ``[s, i, j]``; a 3D frame ``[i, j, k]`` and
+    ``[s, i, j, k]``); ``attrs`` holds the file attributes (time, index, the grid keys nx,
+    ny, ax, bx, ay, by, dx, dy, in 3D also nz, az, bz, dz, and whatever extra attrs the
     writer was given) plus ``"locations"``: ``{name: "node" | "corner"}``, and
     ``"diagnostics"``: ``{name: array}`` with ``"diagnostic_dims"``: ``{name: axis names}``
     for the frame's small diagnostic arrays (both empty if it has none).  Raises OSError
@@ -65,11 +68,12 @@ def read_frame(path: str | os.PathLike) -> tuple[float, dict[str, np.ndarray], d
         attrs = {k: _py(v) for k, v in f.attrs.items()}
         if "time" not in attrs or "nx" not in attrs:
             raise ValueError(f"{path} is not a refmap frame file (no time/grid attributes)")
+        ndim = frame_ndim(attrs)
         fields: dict[str, np.ndarray] = {}
         locations: dict[str, str] = {}
         for name, ds in f["fields"].items():
             arr = np.asarray(ds[()], dtype=np.float64)
-            fields[name] = np.ascontiguousarray(np.swapaxes(arr, -1, -2))
+            fields[name] = to_disk(arr, ndim)  # reversing the reversed axes
             locations[name] = _py(ds.attrs["location"])
         small: dict[str, np.ndarray] = {}
         small_dims: dict[str, tuple[str, ...]] = {}
@@ -125,18 +129,22 @@ def open_run(
     Dimensions: ``time``; ``x``, ``y`` (the nx x ny nodes / cell centres); ``xc``, ``yc``
     (the corners); ``solid`` for per-solid fields.  Node fields have dims ``(time, x, y)``
     or ``(time, solid, x, y)``, corner fields ``(time, xc, yc)`` or
-    ``(time, solid, xc, yc)``; each variable has attrs ``location`` and ``per_solid``.
+    ``(time, solid, xc, yc)``; each variable has attrs ``location`` and ``per_solid``.  A
+    3D run adds ``z`` and ``zc``: node fields ``(time, [solid,] x, y, z)``, corner fields
+    ``(time, [solid,] xc, yc, zc)``.
     The frames' small diagnostic arrays (see :meth:`refmap.io.RunWriter.write_frame`;
     written by :class:`refmap.simulation.Simulation`: ``solid_centroid``,
     ``solid_velocity``, ``solid_area``, ``solid_J_min``, ``solid_J_max`` and, with contact,
     ``contact_force``, ``contact_wall_gap``, ``contact_min_gap``,
     ``contact_overlap_area``) are variables with dims ``(time, *their dims)`` and attr
     ``diagnostic``.  Coordinates: ``time``, ``index`` (frame index, along time), ``x``,
-    ``y``, ``xc``, ``yc``, ``solid``, and ``other_solid`` and ``xy`` (``"x"``, ``"y"``)
-    where diagnostics use them.  ``ds.attrs`` holds metadata.json (values that are not str/int/
-    float/bool are stored as JSON strings) and the grid keys nx, ny, ax, bx, ay, by, dx, dy
-    (which take precedence over metadata keys of the same name; those are kept as
-    ``metadata.<key>``).  Use :func:`refmap.io.grid_from_attrs` to rebuild the Grid.
+    ``y``, ``xc``, ``yc`` (3D: also ``z``, ``zc``), ``solid``, and ``other_solid``, ``xy``
+    (``"x"``, ``"y"``) and ``xyz`` (``"x"``, ``"y"``, ``"z"``) where diagnostics use them.
+    ``ds.attrs`` holds metadata.json (values that are not str/int/float/bool are stored as
+    JSON strings) and the grid keys nx, ny, ax, bx, ay, by, dx, dy, in 3D also nz, az, bz,
+    dz (which take precedence over metadata keys of the same name; those are kept as
+    ``metadata.<key>``).  Use :func:`refmap.io.grid_from_attrs` to rebuild the Grid (a
+    Grid3D for a 3D run).
 
     Frames are ordered by index.  Unreadable frame files, frames on a different grid, and
     leftover ``*.tmp`` files are skipped with a ``UserWarning``.  A field missing from some
@@ -160,7 +168,7 @@ def open_run(
 
     wanted = None if fields is None else set(fields)
     loaded: list[tuple] = []  # (index, time, fields, locations, diagnostics, their dims)
-    grid: Grid | None = None
+    grid: Grid | Grid3D | None = None
     for index, path in list_frames(run_dir):
         try:
             time, data, attrs = read_frame(path)
@@ -196,7 +204,7 @@ def open_run(
     order: dict[str, tuple[str, int]] = {}  # name -> (location, nsolid or 0)
     for _, _, data, locs, _, _ in loaded:
         for name, arr in data.items():
-            nsolid = arr.shape[0] if arr.ndim == 3 else 0
+            nsolid = arr.shape[0] if arr.ndim == grid.ndim + 1 else 0
             loc = locs[name]
             if name in order:
                 old_loc, old_n = order[name]
@@ -210,7 +218,8 @@ def open_run(
     nt = len(loaded)
     data_vars = {}
     for name, (loc, nsolid) in order.items():
-        sdims = ("x", "y") if loc == "node" else ("xc", "yc")
+        names = ("x", "y", "z")[: grid.ndim]
+        sdims = names if loc == "node" else tuple(f"{a}c" for a in names)
         shape2 = grid.shape(loc)
         if nsolid:
             dims = ("time", "solid", *sdims)
@@ -250,16 +259,15 @@ def open_run(
                 buf[(t, *(slice(0, k) for k in arr.shape))] = arr
         data_vars[name] = xr.Variable(("time", *dims), buf, attrs={"diagnostic": True})
 
-    x, y = grid.axes("node")
-    xc, yc = grid.axes("corner")
     coords = {
         "time": ("time", np.array([e[1] for e in loaded], dtype=np.float64)),
         "index": ("time", np.array([e[0] for e in loaded], dtype=np.int64)),
-        "x": ("x", x, {"long_name": "x of cell centres (nodes)"}),
-        "y": ("y", y, {"long_name": "y of cell centres (nodes)"}),
-        "xc": ("xc", xc, {"long_name": "x of cell corners"}),
-        "yc": ("yc", yc, {"long_name": "y of cell corners"}),
     }
+    names = ("x", "y", "z")[: grid.ndim]
+    for a, c in zip(names, grid.axes("node"), strict=True):
+        coords[a] = (a, c, {"long_name": f"{a} of cell centres (nodes)"})
+    for a, c in zip(names, grid.axes("corner"), strict=True):
+        coords[f"{a}c"] = (f"{a}c", c, {"long_name": f"{a} of cell corners"})
     sizes = {}
     for name, dims in small_order.items():
         sizes.update(zip(dims, small_shape[name], strict=True))
@@ -270,6 +278,8 @@ def open_run(
         coords["other_solid"] = ("other_solid", np.arange(sizes["other_solid"]))
     if "xy" in sizes:
         coords["xy"] = ("xy", np.array(["x", "y"][: sizes["xy"]]))
+    if "xyz" in sizes:
+        coords["xyz"] = ("xyz", np.array(["x", "y", "z"][: sizes["xyz"]]))
 
     attrs = _flat_attrs(read_metadata(run_dir))
     for k, v in grid_attrs(grid).items():

@@ -41,6 +41,23 @@ Per-solid fields appear in the XDMF as ``name_0``, ``name_1``, ... through Hyper
 Every file is written under a temporary name in its final folder and then moved into place
 with ``os.replace``; killing the process mid-write leaves at most a ``*.tmp`` file, never a
 half-written file under a final name.
+
+Three dimensions (a :class:`~refmap.grid.Grid3D`).  The same layout with one more axis.  The
+file attributes add ``nz, az, bz, dz`` (a frame holding nz, az and bz is read as 3D) and the
+layout string says ``[..., k, j, i]``; the axes add ``/z`` (length nz) and ``/zc`` (nz+1).
+Fields are indexed ``[i, j, k]``: node fields ``(nx, ny, nz)``, corner fields
+``(nx+1, ny+1, nz+1)``, per-solid fields with a leading solid axis (so a 4D array is
+per-solid).  Each field is stored with its *last three axes reversed* (z slowest, x fastest):
+a node field ``(nx, ny, nz)`` is saved as ``(nz, ny, nx)``, a per-solid corner field
+``(nsolid, nx+1, ny+1, nz+1)`` as ``(nsolid, nz+1, ny+1, nx+1)``, with ``dims`` ``"z y x"``,
+``"solid zc yc xc"`` and so on; the reader reverses them back.  run.xdmf describes a
+``3DCoRectMesh`` with ``Dimensions="nz+1 ny+1 nx+1"``, ``Origin="az ay ax"``,
+``Spacing="dz dy dx"`` (GeometryType ``ORIGIN_DXDYDZ``); corner fields are ``Center="Node"``
+attributes of shape ``(nz+1, ny+1, nx+1)``, node fields ``Center="Cell"`` ones of shape
+``(nz, ny, nx)``, per-solid fields HyperSlabs of the 4D dataset.  The ``velocity`` vector is
+``JOIN(u, v, w)`` when scalar fields ``u``, ``v`` and ``w`` exist at the same location (no
+``/xdmf`` zero dataset is written in 3D).  The diagnostics dims ``z`` and ``zc`` are
+reserved too, and per-solid vectors use the axis name ``"xyz"`` (``("solid", "xyz")``).
 """
 
 from __future__ import annotations
@@ -57,7 +74,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from refmap.grid import Grid
+from refmap.grid import Grid, Grid3D
 from refmap.io._common import (
     DIAGNOSTICS_FILE,
     DIAGNOSTICS_GROUP,
@@ -66,6 +83,7 @@ from refmap.io._common import (
     FRAMES_DIR,
     METADATA_FILE,
     RESERVED_FRAME_ATTRS,
+    RESERVED_FRAME_ATTRS_3D,
     TMP_SUFFIX,
     XDMF_FILE,
     atomic_write_bytes,
@@ -73,6 +91,7 @@ from refmap.io._common import (
     grid_attrs,
     infer_location,
     make_temp,
+    to_disk,
     to_json,
 )
 
@@ -97,7 +116,7 @@ def _compression_options(compression: str | None, level: int) -> dict:
 class _FieldRecord:
     name: str
     location: str  # "node" | "corner"
-    nsolid: int  # 0 for an ordinary 2D field
+    nsolid: int  # 0 for a field without a solid axis
 
 
 @dataclass(frozen=True)
@@ -109,8 +128,9 @@ class _FrameRecord:
     velocity_zero: str | None  # dataset path of the zero component, or None
 
 
-def _disk_dims(location: str, per_solid: bool) -> str:
-    base = "y x" if location == "node" else "yc xc"
+def _disk_dims(location: str, per_solid: bool, ndim: int = 2) -> str:
+    names = "zyx"[3 - ndim :]
+    base = " ".join(a if location == "node" else f"{a}c" for a in names)
     return f"solid {base}" if per_solid else base
 
 
@@ -144,7 +164,7 @@ def _csv_value(value: Any) -> Any:
     return value
 
 
-def _prepare_diagnostics(diagnostics: dict, fields: dict) -> dict:
+def _prepare_diagnostics(diagnostics: dict, fields: dict, ndim: int = 2) -> dict:
     """``{name: (dims, float64 array)}`` from a frame's ``diagnostics`` argument, checked."""
     out = {}
     for name, value in diagnostics.items():
@@ -164,7 +184,10 @@ def _prepare_diagnostics(diagnostics: dict, fields: dict) -> dict:
                 f"diagnostics {name!r}: dims {dims!r} must name each of its {arr.ndim} axes "
                 "(identifiers)"
             )
-        taken = sorted({"time", "x", "y", "xc", "yc"}.intersection(dims))
+        reserved = {"time", "x", "y", "xc", "yc"}
+        if ndim == 3:
+            reserved |= {"z", "zc"}
+        taken = sorted(reserved.intersection(dims))
         if taken:
             raise ValueError(f"diagnostics {name!r}: dims {taken} are reserved for the grid/time")
         out[name] = (dims, arr)
@@ -184,7 +207,8 @@ class RunWriter:
         checkpoint.prev.h5, summary.json) are deleted first; anything else in the folder is
         kept.  A path that exists and is not a folder raises ``FileExistsError`` either way.
     grid:
-        The :class:`~refmap.grid.Grid` every frame lives on.
+        The :class:`~refmap.grid.Grid` (2D) or :class:`~refmap.grid.Grid3D` every frame
+        lives on.
     metadata:
         Anything JSON-able that describes the run (input parameters, package versions,
         command line, ...).  Saved as metadata.json together with the creation time
@@ -203,7 +227,7 @@ class RunWriter:
     def __init__(
         self,
         run_dir: str | os.PathLike,
-        grid: Grid,
+        grid: Grid | Grid3D,
         metadata: dict | None = None,
         *,
         overwrite: bool = False,
@@ -281,18 +305,21 @@ class RunWriter:
         ``fields`` maps names to arrays indexed ``[i, j]``: node fields ``(nx, ny)``, corner
         fields ``(nx+1, ny+1)``, per-solid fields with a leading solid axis.  A 3D array is
         always taken as per-solid, so vector fields must be split into components (``u``,
-        ``v``) first.  Values are stored as float64.  Any other shape raises ValueError naming
-        the field.  ``attrs`` are extra scalar/array/string attributes for the file (other
+        ``v``) first.  On a 3D grid the arrays are indexed ``[i, j, k]``: ``(nx, ny, nz)``,
+        ``(nx+1, ny+1, nz+1)``, a 4D array is per-solid and velocity comes as ``u``, ``v``,
+        ``w``.  Values are stored as float64.  Any other shape raises ValueError naming the
+        field.  ``attrs`` are extra scalar/array/string attributes for the file (other
         values are stored as JSON strings); they may not reuse the reserved names time,
-        index, format, layout, locations, diagnostics, diagnostic_dims or the grid keys.
+        index, format, layout, locations, diagnostics, diagnostic_dims or the grid keys
+        (in 3D also nz, az, bz, dz).
 
         ``diagnostics`` maps names to small arrays of numbers that belong to the frame but
         live on no grid (per-solid centroids, contact forces, per-pair gaps...): each value
-        is an array, or a pair ``(dims, array)`` naming its axes (``("solid", "xy")``;
-        default ``NAME_dim0``, ...).  They are stored in ``/diagnostics`` as float64 and
-        come back from :func:`refmap.io.read_frame` (``attrs["diagnostics"]``) and
-        :func:`refmap.io.open_run` (variables with dims ``("time", *dims)``).  A name may
-        not also be a field name.
+        is an array, or a pair ``(dims, array)`` naming its axes (``("solid", "xy")``, in
+        3D ``("solid", "xyz")``; default ``NAME_dim0``, ...).  They are stored in
+        ``/diagnostics`` as float64 and come back from :func:`refmap.io.read_frame`
+        (``attrs["diagnostics"]``) and :func:`refmap.io.open_run` (variables with dims
+        ``("time", *dims)``).  A name may not also be a field name.
 
         Writing an index again replaces that frame.  Returns the path of the frame file.
         """
@@ -302,7 +329,9 @@ class RunWriter:
             raise ValueError(f"frame index must be >= 0, got {index}")
         time = float(time)
         attrs = dict(attrs or {})
-        clash = sorted(RESERVED_FRAME_ATTRS.intersection(attrs))
+        ndim = self.grid.ndim
+        reserved = RESERVED_FRAME_ATTRS_3D if ndim == 3 else RESERVED_FRAME_ATTRS
+        clash = sorted(reserved.intersection(attrs))
         if clash:
             raise ValueError(f"frame attrs use reserved names: {clash}")
 
@@ -312,14 +341,14 @@ class RunWriter:
                 raise ValueError(f"invalid field name {name!r}")
             arr = np.asarray(value, dtype=np.float64)
             location, per_solid = infer_location(self.grid, name, arr.shape)
-            disk = np.ascontiguousarray(np.swapaxes(arr, -1, -2))
+            disk = to_disk(arr, ndim)
             prepared.append((_FieldRecord(name, location, arr.shape[0] if per_solid else 0), disk))
 
         by_name = {rec.name: rec for rec, _ in prepared}
-        small = _prepare_diagnostics(diagnostics or {}, by_name)
-        zero_loc = None
+        small = _prepare_diagnostics(diagnostics or {}, by_name, ndim)
+        zero_loc = None  # 2D only: the velocity vector's zero third component
         u, v = by_name.get("u"), by_name.get("v")
-        if u and v and u.nsolid == 0 and v.nsolid == 0 and u.location == v.location:
+        if ndim == 2 and u and v and u.nsolid == 0 and v.nsolid == 0 and u.location == v.location:
             zero_loc = u.location
 
         final = self.frames_dir / frame_name(index)
@@ -327,23 +356,28 @@ class RunWriter:
         try:
             with h5py.File(tmp, "w") as f:
                 f.attrs["format"] = FORMAT
-                f.attrs["layout"] = "fields stored transposed in the last two axes: [..., j, i]"
+                f.attrs["layout"] = (
+                    "fields stored transposed in the last two axes: [..., j, i]"
+                    if ndim == 2
+                    else "fields stored with the last three axes reversed: [..., k, j, i]"
+                )
                 f.attrs["time"] = time
                 f.attrs["index"] = index
                 for k, val in grid_attrs(self.grid).items():
                     f.attrs[k] = val
                 for k, val in attrs.items():
                     f.attrs[str(k)] = _h5_attr_value(val)
-                x, y = self.grid.axes("node")
-                xc, yc = self.grid.axes("corner")
-                for k, val in (("x", x), ("y", y), ("xc", xc), ("yc", yc)):
+                names = "xyz"[:ndim]
+                axes = [*zip(names, self.grid.axes("node"), strict=True)]
+                axes += [(f"{a}c", c) for a, c in zip(names, self.grid.axes("corner"), strict=True)]
+                for k, val in axes:
                     f.create_dataset(k, data=val)
                 g = f.create_group("fields")
                 for rec, disk in prepared:
                     ds = g.create_dataset(rec.name, data=disk, **self._compression)
                     ds.attrs["location"] = rec.location
                     ds.attrs["per_solid"] = bool(rec.nsolid)
-                    ds.attrs["dims"] = _disk_dims(rec.location, bool(rec.nsolid))
+                    ds.attrs["dims"] = _disk_dims(rec.location, bool(rec.nsolid), ndim)
                 if small:
                     dg = f.create_group(DIAGNOSTICS_GROUP)
                     for name, (dims, arr) in small.items():
@@ -446,34 +480,62 @@ def _hyperslab_attribute(parent, name, center, dims, nsolid, k, ref) -> None:
         Type="HyperSlab",
         Dimensions=" ".join(str(d) for d in dims),
     )
-    sel = ET.SubElement(slab, "DataItem", Format="XML", NumberType="Int", Dimensions="3 3")
-    sel.text = f"{k} 0 0  1 1 1  1 {dims[0]} {dims[1]}"
+    rank = len(dims) + 1
+    sel = ET.SubElement(slab, "DataItem", Format="XML", NumberType="Int", Dimensions=f"3 {rank}")
+    start = " ".join([str(k)] + ["0"] * len(dims))
+    stride = " ".join(["1"] * rank)
+    count = " ".join(["1", *(str(d) for d in dims)])
+    sel.text = f"{start}  {stride}  {count}"
     _data_item(slab, (nsolid, *dims), ref)
 
 
-def build_xdmf(grid: Grid, frames) -> str:
+def _velocity_parts(grid: Grid | Grid3D, fr) -> tuple[str, list[str]] | None:
+    """(location, dataset paths) of the frame's ``velocity`` vector, or None: (u, v, zero)
+    in 2D, (u, v, w) in 3D, all scalar fields at one location."""
+    by_name = {r.name: r for r in fr.fields}
+    if grid.ndim == 2:
+        if fr.velocity_zero is None:
+            return None
+        return by_name["u"].location, ["/fields/u", "/fields/v", fr.velocity_zero]
+    comps = [by_name.get(c) for c in ("u", "v", "w")]
+    if not all(comps) or any(c.nsolid for c in comps):
+        return None
+    if len({c.location for c in comps}) != 1:
+        return None
+    return comps[0].location, ["/fields/u", "/fields/v", "/fields/w"]
+
+
+def build_xdmf(grid: Grid | Grid3D, frames) -> str:
     """Return the XDMF 3 text of a temporal collection over ``frames``.
 
     ``frames`` are the writer's frame records (index, time, relative path, fields).  The
-    mesh of every frame is the 2DCoRectMesh of the grid's corners; see the module docstring
-    for the axis order.
+    mesh of every frame is the 2DCoRectMesh (3DCoRectMesh on a 3D grid) of the grid's
+    corners; see the module docstring for the axis order.
     """
     root = ET.Element("Xdmf", Version="3.0")
     domain = ET.SubElement(root, "Domain")
     coll = ET.SubElement(
         domain, "Grid", Name="run", GridType="Collection", CollectionType="Temporal"
     )
-    cdims = (grid.ny + 1, grid.nx + 1)
-    ndims = (grid.ny, grid.nx)
+    ndim = grid.ndim
+    cdims = tuple(grid.shape("corner"))[::-1]  # slowest first: (ny+1, nx+1) or (nz+1, ...)
+    ndims = tuple(grid.shape("node"))[::-1]
+    origin = [grid.ax, grid.ay, grid.az] if ndim == 3 else [grid.ax, grid.ay]
+    spacing = list(grid.spacing)
     for fr in frames:
         g = ET.SubElement(coll, "Grid", Name=f"frame_{fr.index:05d}", GridType="Uniform")
         ET.SubElement(g, "Time", Value=repr(float(fr.time)))
         ET.SubElement(
-            g, "Topology", TopologyType="2DCoRectMesh", Dimensions=f"{cdims[0]} {cdims[1]}"
+            g,
+            "Topology",
+            TopologyType=f"{ndim}DCoRectMesh",
+            Dimensions=" ".join(str(d) for d in cdims),
         )
-        geo = ET.SubElement(g, "Geometry", GeometryType="ORIGIN_DXDY")
-        _data_item(geo, (2,), f"{float(grid.ay)!r} {float(grid.ax)!r}", fmt="XML")
-        _data_item(geo, (2,), f"{float(grid.dy)!r} {float(grid.dx)!r}", fmt="XML")
+        geo = ET.SubElement(
+            g, "Geometry", GeometryType="ORIGIN_DXDY" if ndim == 2 else "ORIGIN_DXDYDZ"
+        )
+        _data_item(geo, (ndim,), " ".join(repr(float(a)) for a in origin[::-1]), fmt="XML")
+        _data_item(geo, (ndim,), " ".join(repr(float(h)) for h in spacing[::-1]), fmt="XML")
         for rec in fr.fields:
             center, dims = ("Node", cdims) if rec.location == "corner" else ("Cell", ndims)
             ref = f"{fr.relpath}:/fields/{rec.name}"
@@ -482,8 +544,9 @@ def build_xdmf(grid: Grid, frames) -> str:
                     _hyperslab_attribute(g, f"{rec.name}_{k}", center, dims, rec.nsolid, k, ref)
             else:
                 _scalar_attribute(g, rec.name, center, dims, ref)
-        if fr.velocity_zero is not None:
-            loc = next(r.location for r in fr.fields if r.name == "u")
+        vel = _velocity_parts(grid, fr)
+        if vel is not None:
+            loc, parts = vel
             center, dims = ("Node", cdims) if loc == "corner" else ("Cell", ndims)
             attr = ET.SubElement(
                 g, "Attribute", Name="velocity", AttributeType="Vector", Center=center
@@ -493,11 +556,10 @@ def build_xdmf(grid: Grid, frames) -> str:
                 "DataItem",
                 ItemType="Function",
                 Function="JOIN($0, $1, $2)",
-                Dimensions=f"{dims[0]} {dims[1]} 3",
+                Dimensions=" ".join(str(d) for d in (*dims, 3)),
             )
-            _data_item(fun, dims, f"{fr.relpath}:/fields/u")
-            _data_item(fun, dims, f"{fr.relpath}:/fields/v")
-            _data_item(fun, dims, f"{fr.relpath}:{fr.velocity_zero}")
+            for part in parts:
+                _data_item(fun, dims, f"{fr.relpath}:{part}")
     ET.indent(root, space="  ")
     body = ET.tostring(root, encoding="unicode")
     return '<?xml version="1.0" ?>\n<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>\n' + body + "\n"
