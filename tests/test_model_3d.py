@@ -30,10 +30,12 @@ def _rotation(axis, theta):
     return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * K @ K
 
 
-def _rigid_ellipsoid_model(n=24, periodic=False, shift=(0.07, -0.11, 0.05)):
-    """An ellipsoid moved rigidly: xi(x) = R^T (x - s) (R a rotation about a skew axis)."""
+def _rigid_ellipsoid_model(n=24, periodic=False, center=(0.07, -0.11, 0.05)):
+    """An ellipsoid moved rigidly: xi(x) = R^T (x - c) + c, R a rotation about a skew axis
+    through c (in 3D, I - R^T is singular, so a rotation and a shift cannot be folded into
+    one centre as the 2D test does; a rotation about an off-centre point is as general)."""
     A = _rotation((1.0, 2.0, 0.5), 0.6).T
-    cc = np.linalg.solve(np.eye(3) - A, -A @ np.asarray(shift))
+    cc = np.asarray(center)
     shape = Ellipsoid(center=(0.0, 0.0, 0.0), semi_axes=(0.4, 0.3, 0.25), angle=0.3)
     solid = Solid(shape=shape, law=NeoHookean(G=10.0, kappa=10.0, dim=3),
                   strain=tuple(map(tuple, A)), strain_center=tuple(cc))
@@ -150,7 +152,8 @@ def test_z_invariant_3d_run_matches_the_2d_run():
     a = run2(m2.initial_state(p2))
     b = run3(m3.initial_state(p3))
     # z-invariant
-    for f in (b.v, b.rho_f, b.xi, b.phi):
+    disp = np.asarray(b.xi) - np.stack(m3.grid.mesh("node"))[None]  # xi_z = z is not invariant
+    for f in (b.v, b.rho_f, disp, b.phi):
         f = np.asarray(f)
         assert np.abs(f - f[..., :1]).max() <= 1e-12 * max(np.abs(f).max(), 1.0)
     assert np.abs(np.asarray(b.v[2])).max() < 1e-12
@@ -185,7 +188,10 @@ def test_sheared_sphere_relaxes_in_a_closed_box():
     assert float(d1["fluid_mass"]) == pytest.approx(float(d0["fluid_mass"]), rel=2e-2)
     row = d1["solids"][0]
     assert {"centroid_z", "velocity_z"} <= set(row)
-    assert abs(float(row["centroid_z"])) < 1e-10  # the shear in the x-y plane keeps z -> -z
+    # the shear in the x-y plane is symmetric under z -> -z, but the scheme is not exactly:
+    # its corner gradient and node divergence are one-sided (the bottom-left / top-right
+    # pair), an O(h) bias on a motion of amplitude ~0.1 (measured drift 1.7e-4 = 1.4e-3 h)
+    assert abs(float(row["centroid_z"])) < 0.01 * model.h
 
 
 def test_3d_settings_not_yet_available_are_named():

@@ -88,8 +88,9 @@ def _check_field(run_dir, field: str) -> None:
         )
 
 
-def _pick_solid(field: str, data: np.ndarray, solid: int | None):
-    if data.ndim != 3:
+def _pick_solid(field: str, data: np.ndarray, solid: int | None, ndim: int = 2):
+    """``data`` of one solid: a per-solid field has one more axis than the grid's ``ndim``."""
+    if data.ndim != ndim + 1:
         if solid is not None:
             raise PostprocessError(f"field {field!r} is not per solid; drop --solid {solid}")
         return data, None
@@ -117,9 +118,10 @@ def field_at(run_dir, field: str, time: float, solid: int | None = None) -> dict
         data = derived_field(source, field)
     except ValueError as exc:
         raise PostprocessError(str(exc).splitlines()[0]) from None
-    data, solid = _pick_solid(field, np.asarray(data, dtype=np.float64), solid)
+    grid = grid_from_attrs(attrs)
+    data, solid = _pick_solid(field, np.asarray(data, dtype=np.float64), solid, grid.ndim)
     return {
-        "grid": grid_from_attrs(attrs),
+        "grid": grid,
         "time": t,
         "index": index,
         "data": data,
@@ -165,10 +167,11 @@ def make_run_movie(run_dir, field: str, out=None, fps: int = 15, solid: int | No
     # resolve a per-solid field's solid now, for a clear message
     _, _, path = frame_times(run_dir)[0]
     try:
-        first = np.asarray(derived_field(read_frame(path), field))
+        source = read_frame(path)
+        first = np.asarray(derived_field(source, field))
     except ValueError as exc:
         raise PostprocessError(str(exc).splitlines()[0]) from None
-    _, solid = _pick_solid(field, first, solid)
+    _, solid = _pick_solid(field, first, solid, grid_from_attrs(source[2]).ndim)
     if out is None:
         out = run_dir / f"{_label(field, solid)}.mp4"
     return make_movie(run_dir, field, out, fps=fps, solid=solid)

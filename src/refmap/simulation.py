@@ -456,18 +456,18 @@ class Simulation:
     def _growth_reference(self, row: dict) -> None:
         """Set the bounds of :data:`GROWTH_LIMITS` from frame 0 (its diagnostics row)."""
         case = self.case
-        g = case.grid
         scales = case.velocity_scales()
         v0 = float(row.get("max_speed", 0.0))
         if v0 > 0:
             scales["initial speed"] = v0
         self._scales = scales
         self._speed_limit = GROWTH_LIMITS["speed"] * max(scales.values())
-        area = (g.bx - g.ax) * (g.by - g.ay)
+        extents = case._extents()
+        area = math.prod(extents)  # the domain's area (2D) or volume (3D)
         rho_max = max([float(case.fluid.rho0)] + [float(s.law.rho0) for s in case.solids])
         drive_u = max(scales.get(k, 0.0) for k in ("boundary speed", "initial solid speed", "initial speed"))
-        gmag = float(np.hypot(*case.gravity))
-        drive = 0.5 * rho_max * drive_u**2 * area + rho_max * gmag * max(g.bx - g.ax, g.by - g.ay) * area
+        gmag = math.hypot(*(float(x) for x in case.gravity))
+        drive = 0.5 * rho_max * drive_u**2 * area + rho_max * gmag * max(extents) * area
         # the floor's speed: the fluid's sound speed, or (incompressible: no sound) the
         # fastest speed the case sets up
         c_floor = scales.get("sound speed", max(scales.values()))
@@ -617,7 +617,7 @@ class Simulation:
 
         ds = open_run(self.out_dir)
         name = self.case.picture_field
-        loc = "corner" if ds[name].dims[-1] == "yc" else "node"
+        loc = "corner" if ds[name].dims[-1] in ("yc", "zc") else "node"
         grid = self.case.grid
         nt = ds.sizes["time"]
         picks = sorted(set(np.linspace(0, nt - 1, min(4, nt)).round().astype(int).tolist()))
