@@ -1,7 +1,7 @@
 """Extrapolation of a solid's reference map into a narrow band outside it, and smoothing.
 
-Each solid's reference map ``xi = (X, Y)`` is known where its level set ``phi < 0`` and is
-needed in the band ``0 <= phi <= band`` outside (thesis 3.5 and 4.8; ``METHOD.md``,
+Each solid's reference map ``xi = (X, Y[, Z])`` is known where its level set ``phi < 0``
+and is needed in the band ``0 <= phi <= band`` outside (thesis 3.5 and 4.8; ``METHOD.md``,
 "Reference map extrapolation").  Two steps, both on node scalars:
 
 * :func:`extrapolate_linear` continues a scalar along the outward normal so that any
@@ -10,21 +10,31 @@ needed in the band ``0 <= phi <= band`` outside (thesis 3.5 and 4.8; ``METHOD.md
 * :func:`smooth_extrapolated` diffuses the extrapolated values only (thesis Algorithm 3),
   removing the tangential "striations" a purely normal extrapolation leaves.
 
-Apply both to X and to Y (they are independent scalars).  Conventions: node arrays
-``(..., nx, ny)`` indexed ``[..., i, j]``, i along x; "solid" means ``phi < 0`` and the
-"band" (the extrapolated nodes) means ``0 <= phi <= band``; nodes with ``phi > band`` are
-never touched.  Leading batch axes are supported natively (``f`` of shape ``(..., nx, ny)``
-with ``phi`` broadcastable to it: one level set for the two components of ``xi``, or one per
-solid), and both functions are also ``jax.vmap``-friendly (pure ``jnp``, no Python control
-flow on values).  Static arguments: ``iters``, ``max_sweeps``, ``fixed_sweeps``,
-``periodic``, ``return_sweeps``, and ``band``, ``dx``, ``dy`` when ``iters`` is left to its
-default (the default sweep count is computed from them in Python).
+Apply both to each component of ``xi`` (they are independent scalars).  Conventions: node
+arrays ``(..., nx, ny)`` indexed ``[..., i, j]``, i along x; "solid" means ``phi < 0`` and
+the "band" (the extrapolated nodes) means ``0 <= phi <= band``; nodes with ``phi > band``
+are never touched.  Leading batch axes are supported natively (``f`` of shape
+``(..., nx, ny)`` with ``phi`` broadcastable to it: one level set for the components of
+``xi``, or one per solid), and both functions are also ``jax.vmap``-friendly (pure ``jnp``,
+no Python control flow on values).  Static arguments: ``iters``, ``max_sweeps``,
+``fixed_sweeps``, ``periodic``, ``return_sweeps``, and ``band``, ``dx``, ``dy`` (``dz``)
+when ``iters`` is left to its default (the default sweep count is computed from them in
+Python).
+
+Two or three dimensions, as in :mod:`refmap.levelset`: the keyword ``dz=`` makes a call
+3D (``extrapolate_linear(f, phi, dx, dy, band, dz=dz)``); the arrays are then
+``(..., nx, ny, nz)``, ``periodic`` has three flags (default none), gradients have three
+components and the stencils six neighbours (x-, x+, y-, y+, z-, z+).  One code path: the
+stencils loop over the axes, and in 2D they perform the original arithmetic in the
+original order, so 2D results are bitwise unchanged (tested against a frozen copy).  The
+band-tile layout of :func:`extend` (``capacity``, :mod:`refmap.narrowband`) is 2D only;
+3D sweeps run on the full grid.
 
 Domain edges: without ``periodic`` nothing beyond the edge is known, so extrapolation and
 one-sided differences use in-domain nodes only, and a second difference across the edge is
 taken as 0 (the linear-extrapolation ghost ``2 f_0 - f_1`` gives exactly that); the normal
 ``grad phi / |grad phi|`` uses the linear ghost of ``phi`` (:func:`refmap.levelset.unit_normal`).
-With ``periodic=(px, py)`` the axis wraps.
+With ``periodic=(px, py[, pz])`` the axis wraps.
 """
 
 from __future__ import annotations
@@ -36,7 +46,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from refmap import narrowband
-from refmap.levelset import Periodic, _neighbours, unit_normal
+from refmap.levelset import Periodic, _dims, _neighbours, _sum, unit_normal
 
 
 def _nb(a, axis, periodic, fill):
@@ -44,52 +54,65 @@ def _nb(a, axis, periodic, fill):
     return _neighbours(a, axis, periodic, edge="fill", fill=fill)
 
 
-def default_sweeps(band, dx, dy) -> int:
-    """Default Jacobi sweep count of :func:`extrapolate_linear`: ``ceil(sqrt(2) band / h) + 3``.
+def _pairs(t):
+    """The per-axis pairs ``(t[0], t[1]), (t[2], t[3]), ...`` of a neighbour list."""
+    return [(t[2 * a], t[2 * a + 1]) for a in range(len(t) // 2)]
 
-    A sweep moves information one node along x or y, so reaching a band node at distance
-    ``band`` along a diagonal normal takes ``sqrt(2) band / h`` sweeps (the Manhattan length
-    of the path), plus a few for the offset of the first band layer.
+
+def default_sweeps(band, dx, dy, *, dz=None) -> int:
+    """Default Jacobi sweep count of :func:`extrapolate_linear`: ``ceil(sqrt(d) band / h) + 3``.
+
+    A sweep moves information one node along one axis, so reaching a band node at distance
+    ``band`` along a diagonal normal takes ``sqrt(2) band / h`` sweeps in 2D,
+    ``sqrt(3) band / h`` in 3D (``dz`` given; the Manhattan length of the path), plus a few
+    for the offset of the first band layer.
     """
-    h = min(float(dx), float(dy))
-    return int(math.ceil(math.sqrt(2.0) * float(band) / h - 1e-9)) + 3
+    if dz is None:
+        h = min(float(dx), float(dy))
+        return int(math.ceil(math.sqrt(2.0) * float(band) / h - 1e-9)) + 3
+    h = min(float(dx), float(dy), float(dz))
+    return int(math.ceil(math.sqrt(3.0) * float(band) / h - 1e-9)) + 3
 
 
-def solid_gradient(f, phi, dx, dy, periodic: Periodic = (False, False)):
+def solid_gradient(f, phi, dx, dy, periodic: Periodic | None = None, *, dz=None):
     """Gradient of ``f`` at solid nodes from solid values only.
 
     Central differences where both neighbours along an axis are solid (``phi < 0``),
     one-sided towards the solid otherwise.  Exact for affine ``f``.
 
-    Returns ``(gx, gy, valid)``: ``valid`` (shape of ``phi``) is True at solid nodes where
-    both components could be formed (a node with no solid neighbour along an axis, e.g. in a
-    one-cell sliver or against a non-periodic edge, is not valid); ``gx``, ``gy`` are
-    meaningless elsewhere.
+    Returns ``(gx, gy, valid)`` (``(gx, gy, gz, valid)`` with ``dz``): ``valid`` (shape of
+    ``phi``) is True at solid nodes where every component could be formed (a node with no
+    solid neighbour along an axis, e.g. in a one-cell sliver or against a non-periodic edge,
+    is not valid); the components are meaningless elsewhere.
     """
+    h, periodic = _dims(dx, dy, dz, periodic, "solid_gradient")
     f = jnp.asarray(f)
     solid = jnp.asarray(phi) < 0
     nb = _DenseNeighbours(periodic)
-    return _solid_gradient_nb(f, nb(f, 0.0), solid, nb(solid, False), dx, dy)
+    return _solid_gradient_nb(f, nb(f, 0.0), solid, nb(solid, False), h)
 
 
-def _solid_gradient_nb(f, f_nb, solid, s_nb, dx, dy):
-    """:func:`solid_gradient` from the neighbours (x-, x+, y-, y+) of f and of the solid mask."""
-    fxm, fxp, fym, fyp = f_nb
-    sxm, sxp, sym, syp = s_nb
-    gx = jnp.where(
-        sxm & sxp, (fxp - fxm) / (2 * dx), jnp.where(sxp, (fxp - f) / dx, (f - fxm) / dx)
-    )
-    gy = jnp.where(
-        sym & syp, (fyp - fym) / (2 * dy), jnp.where(syp, (fyp - f) / dy, (f - fym) / dy)
-    )
-    return gx, gy, solid & (sxm | sxp) & (sym | syp)
+def _solid_gradient_nb(f, f_nb, solid, s_nb, h):
+    """:func:`solid_gradient` from the neighbours (x-, x+, y-, y+[, z-, z+]) of f and of the
+    solid mask, ``h`` the spacings: ``(*g, valid)``."""
+    g = []
+    valid = solid
+    for ha, (fm, fp), (sm, sp) in zip(h, _pairs(f_nb), _pairs(s_nb), strict=True):
+        g.append(
+            jnp.where(sm & sp, (fp - fm) / (2 * ha), jnp.where(sp, (fp - f) / ha, (f - fm) / ha))
+        )
+        valid = valid & (sm | sp)
+    return (*g, valid)
 
 
 def _gradient_valid(solid, periodic):
     """Solid nodes with a solid neighbour along each axis (geometry only, shape of phi)."""
-    sxm, sxp = _nb(solid, -2, periodic[0], False)
-    sym, syp = _nb(solid, -1, periodic[1], False)
-    return solid & (sxm | sxp) & (sym | syp)
+    d = len(periodic)
+    valid = solid
+    for a in range(d):
+        sm, sp = _nb(solid, a - d, periodic[a], False)
+        valid = valid & (sm | sp)
+    return valid
 
 
 def extrapolate_linear(
@@ -99,14 +122,16 @@ def extrapolate_linear(
     dy,
     band,
     iters: int | None = None,
-    periodic: Periodic = (False, False),
+    periodic: Periodic | None = None,
+    *,
+    dz=None,
 ):
     """Extend a node scalar from the solid (``phi < 0``) into the band ``0 <= phi <= band``.
 
     Linear extrapolation along the outward normal ``n = grad phi / |grad phi|`` (Aslam 2004,
-    "constant then linear"), with the gradient extrapolated as two independent scalars:
+    "constant then linear"), with the gradient extrapolated as ``d`` independent scalars:
 
-    (a) ``g = (gx, gy)`` at solid nodes from solid values only (:func:`solid_gradient`);
+    (a) ``g = (gx, gy[, gz])`` at solid nodes from solid values only (:func:`solid_gradient`);
     (b) ``g`` is extended as a constant along ``n``: at each unknown node (band nodes, and
         solid nodes without a valid gradient, all with ``phi <= band``) the upwind
         discretisation of ``n . grad q = 0`` gives ``q = sum_d w_d q_up_d / sum_d w_d``,
@@ -118,10 +143,10 @@ def extrapolate_linear(
     sweep only neighbours whose values are already known (a node becomes known when one of
     them is; the sums above then run over the known upwind axes, with ``n . g`` restricted
     to the same axes).  A node with no known upwind neighbour (``n = 0``, or an upwind node
-    outside the band or the domain) falls back on the mean over its known 4-neighbours
+    outside the band or the domain) falls back on the mean over its known ``2d`` neighbours
     ``nb`` of ``q_nb`` for the gradient and ``f_nb + (x - x_nb) . g`` for ``f``.
 
-    Exactness: every formula above reproduces an affine ``f = a x + b y + c`` exactly
+    Exactness: every formula above reproduces an affine ``f = a . x + c`` exactly
     (one-sided and central differences of an affine field are exact; the upwind relation is
     exact for it, over any subset of axes), so an affine ``f`` is reproduced to round-off at
     every band node reached, whatever ``phi``.  A smooth ``f`` is extrapolated with error
@@ -129,103 +154,115 @@ def extrapolate_linear(
 
     Which nodes are known before each sweep depends on ``phi`` only, so it is found first by
     a cheap boolean pre-pass (shared by all components of a batch with one ``phi``); the
-    value sweeps then only gather 4-neighbours of ``gx``, ``gy`` and ``f``.
+    value sweeps then only gather the ``2d`` neighbours of ``g`` and ``f``.
 
-    Cost: ``iters`` boolean pre-pass sweeps plus ``iters`` value sweeps, each a 5-point
-    stencil on three arrays per component.  A sweep moves information one node along an
-    axis.  The default :func:`default_sweeps` (``ceil(sqrt(2) band / h) + 3``, 12 for
-    ``band = 6h``) reaches the whole band along diagonals too and lets the upwind values
-    settle (measured: within 1e-5 of the fully converged sweeps for the shapes in the
-    tests; ``ceil(band / h) + 3`` = 9 sweeps also reaches every band node but leaves
-    differences up to ~1e-2 for ``sin(2x + 1) cos(1.5y)`` at the outer diagonal band nodes).  With
-    fewer sweeps the outer band nodes keep their input value (not reached) or an
-    off-normal, still affine-exact, estimate.
+    Cost: ``iters`` boolean pre-pass sweeps plus ``iters`` value sweeps, each a
+    ``(2d+1)``-point stencil on ``d + 1`` arrays per component.  A sweep moves information
+    one node along an axis.  The default :func:`default_sweeps` (``ceil(sqrt(2) band / h) +
+    3``, 12 for ``band = 6h``; ``sqrt(3)`` in 3D) reaches the whole band along diagonals
+    too and lets the upwind values settle (measured in 2D: within 1e-5 of the fully
+    converged sweeps for the shapes in the tests; ``ceil(band / h) + 3`` = 9 sweeps also
+    reaches every band node but leaves differences up to ~1e-2 for
+    ``sin(2x + 1) cos(1.5y)`` at the outer diagonal band nodes).  With fewer sweeps the
+    outer band nodes keep their input value (not reached) or an off-normal, still
+    affine-exact, estimate.
 
     Args:
-        f: node scalar, ``(..., nx, ny)``; values at ``phi >= 0`` are ignored (may be
-            anything finite or not).
+        f: node scalar, ``(..., nx, ny)`` (``(..., nx, ny, nz)`` with ``dz``); values at
+            ``phi >= 0`` are ignored (may be anything finite or not).
         phi: level set broadcastable to ``f`` (negative in the solid).
         dx, dy: spacings.
         band: width of the extrapolation band (a distance, e.g. ``6 * dx``).
         iters: number of Jacobi sweeps (static); default :func:`default_sweeps`.
-        periodic: static (x, y) wrap flags.
+        periodic: static (x, y[, z]) wrap flags (default none).
+        dz: the z spacing: given, the arrays are 3D.
 
     Returns:
         ``f`` with its band values replaced; solid nodes and nodes with ``phi > band`` (and any
         band node not reached within ``iters`` sweeps) are returned unchanged.
     """
+    h, periodic = _dims(dx, dy, dz, periodic, "extrapolate_linear")
+    d = len(h)
     f = jnp.asarray(f)
     phi = jnp.asarray(phi)
-    if f.ndim < 2:
-        raise ValueError(f"f must have shape (..., nx, ny), got {f.shape}")
+    if f.ndim < d:
+        names = ", ".join(("nx", "ny", "nz")[:d])
+        raise ValueError(f"f must have shape (..., {names}), got {f.shape}")
     if iters is None:
-        iters = default_sweeps(band, dx, dy)
+        iters = default_sweeps(band, dx, dy, dz=dz)
     shape = jnp.broadcast_shapes(f.shape, phi.shape)
     f = jnp.broadcast_to(f, shape)
 
     solid = phi < 0
     in_band = phi <= band
     update_f = in_band & ~solid
-    gx, gy, gvalid = solid_gradient(f, phi, dx, dy, periodic)
+    *g, gvalid = solid_gradient(f, phi, dx, dy, periodic, dz=dz)
     update_g = in_band & ~gvalid
-    normal = unit_normal(phi, dx, dy, periodic)
+    normal = unit_normal(phi, dx, dy, periodic, dz=dz)
     nb = _DenseNeighbours(periodic)
-    fixed_g = dict(known=False, arrival=jnp.int32(iters + 1), value=(0.0, 0.0))
+    fixed_g = dict(known=False, arrival=jnp.int32(iters + 1), value=(0.0,) * d)
     fixed_f = dict(known=False, arrival=jnp.int32(iters + 1), value=0.0)
     # Values that are not known yet are never used (weight 0), but may be NaN: zero them.
-    values = (jnp.where(gvalid, gx, 0.0), jnp.where(gvalid, gy, 0.0), jnp.where(solid, f, 0.0))
+    values = tuple(jnp.where(gvalid, ga, 0.0) for ga in g) + (jnp.where(solid, f, 0.0),)
     f_ext, done = _extrapolate_core(
         values,
         gvalid,
         solid,
         update_g,
         update_f,
-        normal[..., 0, :, :],
-        normal[..., 1, :, :],
+        tuple(normal[(Ellipsis, a) + (slice(None),) * d] for a in range(d)),
         nb,
         fixed_g,
         fixed_f,
         iters,
-        dx,
-        dy,
+        h,
     )
     return jnp.where(done, f_ext, f)
 
 
 class _DenseNeighbours:
-    """The four neighbours (x-, x+, y-, y+) of a grid array, a constant beyond an edge."""
+    """The ``2d`` neighbours (x-, x+, y-, y+[, z-, z+]) of a grid array, a constant beyond
+    an edge (``d = len(periodic)``)."""
 
     def __init__(self, periodic):
-        self.px, self.py = periodic
+        self.periodic = tuple(periodic)
 
     def __call__(self, a, fill):
-        am, ap = _nb(a, -2, self.px, fill)
-        bm, bp = _nb(a, -1, self.py, fill)
-        return am, ap, bm, bp
+        d = len(self.periodic)
+        out = ()
+        for ax in range(d):
+            out += _nb(a, ax - d, self.periodic[ax], fill)
+        return out
 
 
 def _extrapolate_core(
-    values, gvalid, solid, update_g, update_f, nrm_x, nrm_y, nb, fixed_g, fixed_f, iters, dx, dy
+    values, gvalid, solid, update_g, update_f, nrm, nb, fixed_g, fixed_f, iters, h
 ):
     """The sweeps of :func:`extrapolate_linear` on any layout of the unknowns.
 
-    ``values = (gx, gy, f)`` and the masks are arrays of one layout (the grid, or a
-    compacted list of band nodes); ``nb(a, fill)`` returns the four neighbours of a layout
-    array, taking ``fill`` (a constant, or per-neighbour arrays) where the neighbour is not
-    part of the layout.  ``fixed_g``/``fixed_f`` hold those fills for the gradient's and
-    for f's ``known``, ``arrival`` and ``value``.  Returns ``(f, done)``: the swept f and the
-    nodes whose f was reached (to be written back).
+    ``values = (*g, f)`` (``d`` gradient components then f) and the masks are arrays of one
+    layout (the grid, or a compacted list of band nodes); ``nrm`` the ``d`` normal
+    components and ``h`` the spacings; ``nb(a, fill)`` returns the ``2d`` neighbours of a
+    layout array, taking ``fill`` (a constant, or per-neighbour arrays) where the neighbour
+    is not part of the layout.  ``fixed_g``/``fixed_f`` hold those fills for the gradient's
+    and for f's ``known``, ``arrival`` and ``value`` (``fixed_g["value"]`` one per
+    component).  Returns ``(f, done)``: the swept f and the nodes whose f was reached (to be
+    written back).
     """
+    d = len(h)
     never = jnp.int32(iters + 1)
 
     def any_neighbour(k, fill):
-        km, kp, lm, lp = nb(k, fill)
-        return km | kp | lm | lp
+        ks = nb(k, fill)
+        out = ks[0]
+        for kk in ks[1:]:
+            out = out | kk
+        return out
 
     # Which values are known before sweep s depends on the geometry only (not on f), so it
     # is computed once (shared by every component using this phi) as an arrival sweep:
     # a node is known before sweep s iff arrival <= s.  A gradient becomes known in the sweep
-    # after any 4-neighbour's gradient is; f in the sweep after any 4-neighbour's f is,
+    # after any neighbour's gradient is; f in the sweep after any neighbour's f is,
     # provided its own gradient is known by the end of that sweep.
     def arrive(s, state):
         gk, fk, ag, af = state
@@ -239,58 +276,66 @@ def _extrapolate_core(
     af0 = jnp.where(solid, 0, never).astype(jnp.int32)
     _, _, ag, af = lax.fori_loop(0, iters, arrive, (gvalid, solid, ag0, af0))
 
-    # Static neighbour weights, order (x-, x+, y-, y+): |n_d| / h_d on the upwind (solid)
-    # side of each axis, 0 on the other.
-    wx = jnp.abs(nrm_x) / dx
-    wy = jnp.abs(nrm_y) / dy
-    zero = jnp.zeros_like(wx)
-    w_up = (
-        jnp.where(nrm_x > 0, wx, zero),
-        jnp.where(nrm_x < 0, wx, zero),
-        jnp.where(nrm_y > 0, wy, zero),
-        jnp.where(nrm_y < 0, wy, zero),
-    )
+    # Static neighbour weights, order (x-, x+, y-, y+[, z-, z+]): |n_d| / h_d on the upwind
+    # (solid) side of each axis, 0 on the other.
+    w = [jnp.abs(n) / ha for n, ha in zip(nrm, h, strict=True)]
+    zero = jnp.zeros_like(w[0])
+    w_up = ()
+    for n, wa in zip(nrm, w, strict=True):
+        w_up += (jnp.where(n > 0, wa, zero), jnp.where(n < 0, wa, zero))
     g_arr = nb(ag, fixed_g["arrival"])
     f_arr = nb(af, fixed_f["arrival"])
+
+    def pair_sum(terms):
+        """``(t0 + t1) + (t2 + t3) [+ (t4 + t5)]``: the 2D expression tree, extended."""
+        return _sum([m + p for m, p in _pairs(terms)])
 
     def weights(arr, s):
         """Upwind weights of the known neighbours, or 1 per known neighbour if none."""
         known = [a <= s for a in arr]
-        up = [jnp.where(k, w, 0.0) for k, w in zip(known, w_up, strict=True)]
-        has_up = (up[0] + up[1]) + (up[2] + up[3]) > 0
+        up = [jnp.where(k, wu, 0.0) for k, wu in zip(known, w_up, strict=True)]
+        has_up = pair_sum(up) > 0
         c = [jnp.where(has_up, u, k.astype(u.dtype)) for u, k in zip(up, known, strict=True)]
-        total = (c[0] + c[1]) + (c[2] + c[3])
+        total = pair_sum(c)
         return c, 1 / jnp.where(total > 0, total, 1.0)
 
-    gx_fill, gy_fill = fixed_g["value"]
+    g_fill = fixed_g["value"]
     f_fill = fixed_f["value"]
 
     def sweep(s, state):
-        # Both regimes are one formula over the 4 neighbours nb with weights c_nb:
+        # Both regimes are one formula over the 2d neighbours nb with weights c_nb:
         #   q = sum c q_nb / sum c,   f = sum c (f_nb + (x - x_nb) . g) / sum c,
         # which is (b)/(c) above when c are the upwind weights (since
         # |n_d| / h_d * (x - x_up)_d = n_d) and the fallback mean when c are 0/1.
-        gx, gy, f = state
+        *g, f = state
         c, inv = weights(g_arr, s)
+        cp = _pairs(c)
         new = []
-        for q, fill in ((gx, gx_fill), (gy, gy_fill)):
-            qxm, qxp, qym, qyp = nb(q, fill)
-            new.append(((c[0] * qxm + c[1] * qxp) + (c[2] * qym + c[3] * qyp)) * inv)
+        for q, fill in zip(g, g_fill, strict=True):
+            qn = _pairs(nb(q, fill))
+            new.append(
+                _sum([cm * qm + cq * qp for (cm, cq), (qm, qp) in zip(cp, qn, strict=True)]) * inv
+            )
         g_now = update_g & (ag <= s + 1)
-        gx = jnp.where(g_now, new[0], gx)
-        gy = jnp.where(g_now, new[1], gy)
+        g = [jnp.where(g_now, nq, q) for nq, q in zip(new, g, strict=True)]
 
         c, inv = weights(f_arr, s)
-        fxm, fxp, fym, fyp = nb(f, f_fill)
-        sx = dx * gx
-        sy = dy * gy
+        fn = _pairs(nb(f, f_fill))
+        sh = [ha * ga for ha, ga in zip(h, g, strict=True)]
         f_new = (
-            (c[0] * (fxm + sx) + c[1] * (fxp - sx)) + (c[2] * (fym + sy) + c[3] * (fyp - sy))
-        ) * inv
+            _sum(
+                [
+                    cm * (fm + sa) + cq * (fp - sa)
+                    for (cm, cq), (fm, fp), sa in zip(_pairs(c), fn, sh, strict=True)
+                ]
+            )
+            * inv
+        )
         f = jnp.where(update_f & (af <= s + 1), f_new, f)
-        return gx, gy, f
+        return (*g, f)
 
-    _, _, f_ext = _checkpointed_sweeps(sweep, iters, values)
+    assert len(values) == d + 1
+    f_ext = _checkpointed_sweeps(sweep, iters, tuple(values))[-1]
     return f_ext, update_f & (af <= iters)
 
 
@@ -313,12 +358,13 @@ def _checkpointed_sweeps(sweep, iters: int, values):
     return lax.fori_loop(q * k, iters, body, values)
 
 
-def _second_differences(f, okx, oky, dx, dy, nb, fill):
-    """``(f_xx, f_yy)`` by 3-point differences, 0 where a stencil node is not valid."""
-    fxm, fxp, fym, fyp = nb(f, fill)
-    fxx = jnp.where(okx, (fxp - 2 * f + fxm) / (dx * dx), 0.0)
-    fyy = jnp.where(oky, (fyp - 2 * f + fym) / (dy * dy), 0.0)
-    return fxx, fyy
+def _second_differences(f, ok, h, nb, fill):
+    """``(f_xx, f_yy[, f_zz])`` by 3-point differences, 0 where a stencil node is not valid
+    (``ok`` one mask per axis, ``h`` the spacings)."""
+    out = []
+    for oka, ha, (fm, fp) in zip(ok, h, _pairs(nb(f, fill)), strict=True):
+        out.append(jnp.where(oka, (fp - 2 * f + fm) / (ha * ha), 0.0))
+    return tuple(out)
 
 
 def smooth_extrapolated(
@@ -331,27 +377,31 @@ def smooth_extrapolated(
     max_sweeps: int = 80,
     ratio=0.25,
     atol=1e-3,
-    periodic: Periodic = (False, False),
+    periodic: Periodic | None = None,
     fixed_sweeps: int | None = None,
     return_sweeps: bool = False,
+    *,
+    dz=None,
 ):
     """Diffuse the extrapolated values of ``f`` in pseudo-time (thesis Algorithm 3).
 
-    Each sweep does ``f <- f + coef h^2 (f_xx + f_yy)`` (``h = min(dx, dy)``, 3-point second
-    differences, Jacobi) at the extrapolated nodes ``0 <= phi <= band`` only; the solid's own
-    values (``phi < 0``) and nodes beyond the band are never changed.  A second difference
-    whose stencil reaches a node that is not valid (``phi > band``, or beyond a non-periodic
-    edge) is taken as 0 along that axis (as with a linearly extrapolated ghost), so an affine
-    ``f`` is a fixed point everywhere; the consequence is that the outermost band layer is
-    smoothed only along the axes whose both neighbours lie in the band (to smooth the whole
-    band, extrapolate and smooth over a band two cells wider than needed).
+    Each sweep does ``f <- f + coef h^2 (f_xx + f_yy)`` (``+ f_zz`` in 3D; ``h`` the
+    smallest spacing, 3-point second differences, Jacobi) at the extrapolated nodes
+    ``0 <= phi <= band`` only; the solid's own values (``phi < 0``) and nodes beyond the
+    band are never changed.  A second difference whose stencil reaches a node that is not
+    valid (``phi > band``, or beyond a non-periodic edge) is taken as 0 along that axis (as
+    with a linearly extrapolated ghost), so an affine ``f`` is a fixed point everywhere; the
+    consequence is that the outermost band layer is smoothed only along the axes whose both
+    neighbours lie in the band (to smooth the whole band, extrapolate and smooth over a band
+    two cells wider than needed).
 
-    Stopping rule (while-loop): before each sweep the largest ``|f_xx|`` and ``|f_yy|`` over
-    the band are compared, per component, with those over the solid interior
-    (``phi < -2h``); sweeping stops once ``band_max <= ratio * interior_max + atol`` for
-    both, or after ``max_sweeps`` sweeps.  The thesis's values are ``coef = 0.025`` (its
-    ``0.000025`` at ``dx = 4/128``), ``ratio = 0.25``, at most 80 sweeps.  With a leading batch
-    axis the rule is applied to each element separately (as ``vmap`` of ``while_loop`` would).
+    Stopping rule (while-loop): before each sweep the largest ``|f_dd|`` over the band is
+    compared, per axis d and per component, with that over the solid interior
+    (``phi < -2h``); sweeping stops once ``band_max <= ratio * interior_max + atol`` on
+    every axis, or after ``max_sweeps`` sweeps.  The thesis's values are ``coef = 0.025``
+    (its ``0.000025`` at ``dx = 4/128``), ``ratio = 0.25``, at most 80 sweeps.  With a
+    leading batch axis the rule is applied to each element separately (as ``vmap`` of
+    ``while_loop`` would).
 
     For reverse-mode differentiation pass ``fixed_sweeps=k``: exactly ``k`` sweeps in a
     ``fori_loop``, no stopping rule.
@@ -362,81 +412,86 @@ def smooth_extrapolated(
     the rule is seldom met and the loop runs ``max_sweeps`` sweeps, as the thesis's code
     (whose interior maximum was effectively 0) always did; an affine field stops at once.
 
-    Cost: per sweep one 5-point stencil and, in the while-loop, one masked max reduction
-    (about 3x the cost of a ``fixed_sweeps`` sweep on CPU).  Stability: the explicit update
-    is stable and monotone for ``coef <= 0.25`` when ``dx == dy``; at the default a
-    grid-scale (2h) tangential mode decays by ``1 - 4 coef = 0.9`` per sweep, a 4h mode by
-    0.95, so 80 sweeps take them down by 2e-4 and 2e-2 (less next to the outermost layer).
+    Cost: per sweep one ``(2d+1)``-point stencil and, in the while-loop, one masked max
+    reduction (about 3x the cost of a ``fixed_sweeps`` sweep on CPU).  Stability: the
+    explicit update is stable and monotone for ``coef <= 1 / (2d)`` on a uniform grid; at
+    the default a grid-scale (2h) tangential mode decays by ``1 - 4 coef = 0.9`` per sweep
+    (along one axis), a 4h mode by 0.95, so 80 sweeps take them down by 2e-4 and 2e-2 (less
+    next to the outermost layer).
 
     Args:
-        f: node scalar(s) ``(..., nx, ny)``, already extrapolated (:func:`extrapolate_linear`).
+        f: node scalar(s) ``(..., nx, ny)`` (``(..., nx, ny, nz)`` with ``dz``), already
+            extrapolated (:func:`extrapolate_linear`).
         phi: level set broadcastable to ``f``.
         dx, dy, band: spacings and band width (the same band as the extrapolation).
         coef, ratio, atol: diffusion number, stopping ratio and absolute tolerance (units of
             ``f / length^2``).
         max_sweeps: cap on the sweeps of the while-loop (static).
-        periodic: static (x, y) wrap flags.
+        periodic: static (x, y[, z]) wrap flags (default none).
         fixed_sweeps: static; if given, run exactly this many sweeps instead.
         return_sweeps: static; also return the number of sweeps done (per batch element).
+        dz: the z spacing: given, the arrays are 3D.
 
     Returns:
         The smoothed ``f`` (and the sweep counts, int32 of the batch shape, if
         ``return_sweeps``).
     """
+    h_ax, periodic = _dims(dx, dy, dz, periodic, "smooth_extrapolated")
+    d = len(h_ax)
     f = jnp.asarray(f)
     phi = jnp.asarray(phi)
     shape = jnp.broadcast_shapes(f.shape, phi.shape)
     f = jnp.broadcast_to(f, shape)
     h = jnp.minimum(dx, dy)
+    if d == 3:
+        h = jnp.minimum(h, dz)
 
     solid = phi < 0
     valid = phi <= band
     ext = valid & ~solid
     nb = _DenseNeighbours(periodic)
-    vxm, vxp, vym, vyp = nb(valid, False)
+    ok = tuple(vm & vp for vm, vp in _pairs(nb(valid, False)))
     limits = None
     if fixed_sweeps is None:
-        limits = _interior_limits(f, phi < -2 * h, vxm & vxp, vym & vyp, dx, dy, nb, ratio, atol)
+        limits = _interior_limits(f, phi < -2 * h, ok, h_ax, nb, ratio, atol)
     return _smooth_core(
         f,
         ext,
-        vxm & vxp,
-        vym & vyp,
+        ok,
         limits,
         nb,
         0.0,
         coef * h * h,
-        dx,
-        dy,
+        h_ax,
         max_sweeps,
         fixed_sweeps,
         return_sweeps,
-        grid_ndim=2,
+        grid_ndim=d,
     )
 
 
-def _interior_limits(f, interior, okx, oky, dx, dy, nb, ratio, atol):
-    """The smoothing's stopping limits ``ratio * max |f_dd| over the interior + atol``."""
+def _interior_limits(f, interior, ok, h, nb, ratio, atol):
+    """The smoothing's stopping limits ``ratio * max |f_dd| over the interior + atol``, one
+    per axis (``ok`` one mask per axis, ``h`` the spacings)."""
+    axes = tuple(range(-len(h), 0))
 
     def masked_max(a, mask):
-        return jnp.max(jnp.where(mask, jnp.abs(a), 0.0), axis=(-2, -1))
+        return jnp.max(jnp.where(mask, jnp.abs(a), 0.0), axis=axes)
 
-    fxx0, fyy0 = _second_differences(f, okx, oky, dx, dy, nb, 0.0)
+    d2 = _second_differences(f, ok, h, nb, 0.0)
     # interior values never change, so neither do these limits
-    return ratio * masked_max(fxx0, interior) + atol, ratio * masked_max(fyy0, interior) + atol
+    return tuple(ratio * masked_max(dd, interior) + atol for dd in d2)
 
 
 def _smooth_core(
     f,
     ext,
-    okx,
-    oky,
+    ok,
     limits,
     nb,
     fill,
     step,
-    dx,
-    dy,
+    h,
     max_sweeps,
     fixed_sweeps,
     return_sweeps,
@@ -444,28 +499,28 @@ def _smooth_core(
 ):
     """The sweeps of :func:`smooth_extrapolated` on any layout (see :func:`_extrapolate_core`):
     ``f`` and the masks are layout arrays whose last ``grid_ndim`` axes are the layout's,
-    ``limits`` the per-batch stopping limits (None with ``fixed_sweeps``)."""
+    ``ok`` one second-difference mask per axis, ``h`` the spacings, ``limits`` the per-batch
+    stopping limits, one per axis (None with ``fixed_sweeps``)."""
     axes = tuple(range(-grid_ndim, 0))
     batch = f.shape[:-grid_ndim]
 
     def expand(a):
         return a.reshape(a.shape + (1,) * grid_ndim)
 
-    def sweep_with(f, fxx, fyy, active):
-        return jnp.where(ext & active, f + step * (fxx + fyy), f)
+    def sweep_with(f, d2, active):
+        return jnp.where(ext & active, f + step * _sum(list(d2)), f)
 
     if fixed_sweeps is not None:
 
         def body(_, f):
-            fxx, fyy = _second_differences(f, okx, oky, dx, dy, nb, fill)
-            return sweep_with(f, fxx, fyy, True)
+            return sweep_with(f, _second_differences(f, ok, h, nb, fill), True)
 
         f = lax.fori_loop(0, fixed_sweeps, body, f)
         if return_sweeps:
             return f, jnp.full(batch, fixed_sweeps, dtype=jnp.int32)
         return f
 
-    lim_xx, lim_yy = (expand(lim) for lim in limits)
+    lims = [expand(lim) for lim in limits]
 
     def cond(state):
         k, _, active, _ = state
@@ -473,11 +528,13 @@ def _smooth_core(
 
     def body(state):
         k, f, _, count = state
-        fxx, fyy = _second_differences(f, okx, oky, dx, dy, nb, fill)
-        # one reduction: is any band node above its limit in either component?
-        excess = jnp.maximum(jnp.abs(fxx) - lim_xx, jnp.abs(fyy) - lim_yy)
+        d2 = _second_differences(f, ok, h, nb, fill)
+        # one reduction: is any band node above its limit along any axis?
+        excess = jnp.abs(d2[0]) - lims[0]
+        for dd, lim in zip(d2[1:], lims[1:], strict=True):
+            excess = jnp.maximum(excess, jnp.abs(dd) - lim)
         active = jnp.max(jnp.where(ext, excess, -1.0), axis=axes) > 0
-        f = sweep_with(f, fxx, fyy, expand(active))
+        f = sweep_with(f, d2, expand(active))
         return k + 1, f, active, count + active.astype(jnp.int32)
 
     state = (jnp.int32(0), f, jnp.ones(batch, dtype=bool), jnp.zeros(batch, dtype=jnp.int32))
@@ -495,15 +552,18 @@ def extend(
     band,
     capacity: int | tuple[int, ...] | None = None,
     iters: int | None = None,
-    periodic: Periodic = (False, False),
+    periodic: Periodic | None = None,
     smooth: dict | None = None,
     tile: tuple[int, int] | None = None,
+    *,
+    dz=None,
 ):
     """:func:`extrapolate_linear` then :func:`smooth_extrapolated`, for several solids at once.
 
     ``f`` is ``(S, C, nx, ny)`` (C components per solid sharing its level set), ``phi``
-    ``(S, nx, ny)``; ``smooth`` holds the keyword arguments of the smoothing (``coef``,
-    ``max_sweeps``, ``ratio``, ``atol``, ``fixed_sweeps``; None: no smoothing).
+    ``(S, nx, ny)``; in 3D (``dz`` given) ``(S, C, nx, ny, nz)`` and ``(S, nx, ny, nz)``.
+    ``smooth`` holds the keyword arguments of the smoothing (``coef``, ``max_sweeps``,
+    ``ratio``, ``atol``, ``fixed_sweeps``; None: no smoothing).
 
     With ``capacity=None`` every sweep runs over the whole grid.  With an integer
     ``capacity`` (a number of tiles) the sweeps run on each solid's band only
@@ -516,21 +576,27 @@ def extend(
     any solid's band covers more than ``capacity`` tiles, this call falls back on the
     full-grid sweeps (same result, full cost).  A tuple of capacities is a ladder: the
     smallest one that holds every solid's band is used (the work is proportional to it),
-    the full grid when none does.
+    the full grid when none does.  The tiles are 2D only: in 3D ``capacity`` and ``tile``
+    are ignored and the sweeps run on the full grid.
     """
+    _, periodic = _dims(dx, dy, dz, periodic, "extend")
     f = jnp.asarray(f)
     phi = jnp.asarray(phi)
+    if dz is not None:
+        capacity = None  # 3D sweeps run on the full grid
     if iters is None:
-        iters = default_sweeps(band, dx, dy)
+        iters = default_sweeps(band, dx, dy, dz=dz)
     if tile is None and capacity is not None:
         tile = narrowband.tile_shape(phi.shape[-2:], periodic)
 
     def dense(f, phi):
         def one(f_k, phi_k):
-            out = extrapolate_linear(f_k, phi_k[None], dx, dy, band, iters, periodic)
+            out = extrapolate_linear(f_k, phi_k[None], dx, dy, band, iters, periodic, dz=dz)
             if smooth is None:
                 return out
-            return smooth_extrapolated(out, phi_k[None], dx, dy, band, periodic=periodic, **smooth)
+            return smooth_extrapolated(
+                out, phi_k[None], dx, dy, band, periodic=periodic, dz=dz, **smooth
+            )
 
         if smooth is not None and smooth.get("fixed_sweeps") is not None and f.shape[1] > 1:
             # fixed sweeps (reverse-differentiable runs): one component at a time, each
@@ -602,7 +668,7 @@ def _extend_tiles(f, phi, flags, dx, dy, band, capacity, tile, iters, periodic, 
     solid2, valid2 = P < 0, P <= band
     solid1, valid1, f1 = (nbm.interior(a, 1) for a in (solid2, valid2, F))
     gx1, gy1, gvalid1 = _solid_gradient_nb(
-        f1, nbm.stencil_neighbours(F), solid1, nbm.stencil_neighbours(solid2), dx, dy
+        f1, nbm.stencil_neighbours(F), solid1, nbm.stencil_neighbours(solid2), (dx, dy)
     )
     ag1 = jnp.where(gvalid1, 0, never).astype(jnp.int32)
     af1 = jnp.where(solid1, 0, never).astype(jnp.int32)
@@ -626,14 +692,12 @@ def _extend_tiles(f, phi, flags, dx, dy, band, capacity, tile, iters, periodic, 
         solid,
         update_g,
         update_f,
-        normal[0],
-        normal[1],
+        (normal[0], normal[1]),
         nb,
         fixed_g,
         fixed_f,
         iters,
-        dx,
-        dy,
+        (dx, dy),
     )
     f_t = jnp.where(done, f_ext, inner(f1))
     index = nbm.node_index(tiles, tile, phi.shape)
@@ -651,10 +715,8 @@ def _extend_tiles(f, phi, flags, dx, dy, band, capacity, tile, iters, periodic, 
         limits = _interior_limits(
             f,
             phi < -2 * h,
-            vxm & vxp,
-            vym & vyp,
-            dx,
-            dy,
+            (vxm & vxp, vym & vyp),
+            (dx, dy),
             dnb,
             smooth.get("ratio", 0.25),
             smooth.get("atol", 1e-3),
@@ -663,14 +725,12 @@ def _extend_tiles(f, phi, flags, dx, dy, band, capacity, tile, iters, periodic, 
     f_s = _smooth_core(
         f_t,
         update_f,
-        vm & vp,
-        wm & wp,
+        (vm & vp, wm & wp),
         limits,
         nb,
         nbm.halos(f1),
         smooth.get("coef", 0.025) * h * h,
-        dx,
-        dy,
+        (dx, dy),
         smooth.get("max_sweeps", 80),
         fixed_sweeps,
         False,
