@@ -209,3 +209,59 @@ def test_3d_settings_not_yet_available_are_named():
         Model(g, (Solid(shape=Disc(radius=0.4), law=NeoHookean(G=1.0, kappa=1.0)),), Boundary(**WALLS_3D))
     with pytest.raises(ValueError, match="3 components"):
         Model(g, (solid,), Boundary(**WALLS_3D)).default_params(gravity=(0.0, -1.0))
+
+
+@pytest.mark.parametrize("name", ["sphere_relax", "sphere_cavity"])
+def test_3d_scenario_short_run_writes_a_readable_run(name, tmp_path):
+    """Each 3D scenario, coarse and short, through Simulation as `refmap run` does: finite,
+    closed box so the fluid mass is kept to the scheme's accuracy, the solid's volume
+    bounded, and the run folder holds 3D frames that read back with x, y, z coordinates,
+    an XDMF with a 3D mesh, and pictures."""
+    import xml.etree.ElementTree as ET
+
+    from refmap.io import open_run
+    from refmap.scenarios import get_case
+    from refmap.simulation import Simulation
+
+    case = get_case(name, 16).replace(t_end=0.1, frames=2)
+    sim = Simulation(case, tmp_path / "run", progress=False, pictures=True, movie=False)
+    sim.run()
+    ds = open_run(tmp_path / "run")
+    assert ds.sizes["time"] == 3 and {"x", "y", "z"} <= set(ds.coords)
+    assert {"u", "v", "w", "sigma_xz", "xi_z"} <= set(ds.data_vars)
+    assert np.all(np.isfinite(ds["w"].values))
+    topo = ET.parse(tmp_path / "run" / "run.xdmf").getroot().find(".//Topology")
+    assert topo.get("TopologyType") == "3DCoRectMesh"
+    assert any((tmp_path / "run").glob("*.png"))
+    # closed boxes: the fluid mass moves only by the non-conservative advection (2D:
+    # 0.02-0.3 % per unit time); the solid's volume ("area" in any dimension) by the blur
+    c = sim.conservation
+    assert abs(c["fluid_mass_change"]["relative"]) < 0.01
+    assert abs(c["solid_area_change"]["relative"]) < 0.05
+    a = ds["solid_area"].values[:, 0]
+    assert 0.95 < a[-1] / a[0] < 1.05
+
+
+def _load_validation(name):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "validation" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("wave_axis, disp_axis", [(2, 0), (0, 1)])
+def test_3d_shear_wave_converges_at_second_order(wave_axis, disp_axis):
+    """The finite-amplitude shear wave (exact, a k = 0.31) travelling along z (displacement
+    along x) and along x (displacement along y).  Measured relative max errors of the
+    velocity 0.2704 (16 cells) and 0.0629 (32): order 2.10 for every pair of axes, equal
+    to the 2D figures (the wave sees the same 1D stencils).  Issue 12 asks for >= 1.9."""
+    sw = _load_validation("shear_wave")
+    e16 = sw.run(16, dim=3, wave_axis=wave_axis, disp_axis=disp_axis)
+    e32 = sw.run(32, dim=3, wave_axis=wave_axis, disp_axis=disp_axis)
+    assert e32[0] < 0.072 and e32[1] < 0.072
+    assert sw.orders([16, 32], [e16[0], e32[0]])[0] >= 1.9
+    assert e32[2] < 1e-6  # no velocity across the displacement appears
