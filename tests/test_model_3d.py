@@ -211,7 +211,7 @@ def test_3d_settings_not_yet_available_are_named():
         Model(g, (solid,), Boundary(**WALLS_3D)).default_params(gravity=(0.0, -1.0))
 
 
-@pytest.mark.parametrize("name", ["sphere_relax", "sphere_cavity"])
+@pytest.mark.parametrize("name", ["sphere_relax", "sphere_cavity", "cross"])
 def test_3d_scenario_short_run_writes_a_readable_run(name, tmp_path):
     """Each 3D scenario, coarse and short, through Simulation as `refmap run` does: finite,
     closed box so the fluid mass is kept to the scheme's accuracy, the solid's volume
@@ -265,3 +265,33 @@ def test_3d_shear_wave_converges_at_second_order(wave_axis, disp_axis):
     assert e32[0] < 0.072 and e32[1] < 0.072
     assert sw.orders([16, 32], [e16[0], e32[0]])[0] >= 1.9
     assert e32[2] < 1e-6  # no velocity across the displacement appears
+
+
+def test_3d_pivot_holds_the_axle_and_lets_the_body_turn():
+    """PivotAnchor in 3D (an axle along z): a held node's velocity is the rigid rotation
+    omega z x r about the axle, with omega the least-squares fit over the fit cylinder; a
+    rigidly rotating field is left as it is; nodes beyond the axle's length are free."""
+    from refmap.anchors import PivotAnchor
+
+    g = Grid3D(16, 16, 16, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0)
+    X, Y, Z = g.mesh("node")
+    pivot = PivotAnchor(center=(0.1, 0.0, 0.0), fit_radius=0.4, hold_radius=0.3, half_length=0.5)
+    rot = np.stack([-0.7 * Y, 0.7 * (X - 0.1), np.zeros_like(X)])
+    v, _ = pivot.apply(g, jnp.asarray(rot), None, None)
+    assert np.allclose(np.asarray(v), rot, atol=1e-13)
+    rng = np.random.default_rng(0)
+    noise = rng.normal(size=rot.shape)
+    v, _ = pivot.apply(g, jnp.asarray(rot + noise), None, None)
+    w = pivot.velocity_weight(g)
+    held = w == 1.0
+    r = np.stack([X - 0.1, Y])
+    omega = (np.asarray(v)[1][held] / r[0][held])[np.abs(r[0][held]) > 0.05]
+    assert np.allclose(omega, omega[0], rtol=1e-10)  # one rigid rotation on the held nodes
+    assert abs(omega[0] - 0.7) < 0.2  # the fit averages the noise out (hundreds of nodes)
+    assert np.asarray(v)[2][held].max() == 0.0  # no motion along the axle
+    assert np.all(w[np.abs(Z) > 0.5] == 0.0)
+    assert np.array_equal(np.asarray(v)[:, w == 0.0], (rot + noise)[:, w == 0.0])
+    with pytest.raises(ValueError, match="2 coordinates, the grid is 3D"):
+        PivotAnchor(center=(0.0, 0.0)).velocity_weight(g)
+    with pytest.raises(ValueError, match="hold_map is 2D only"):
+        PivotAnchor(center=(0.0, 0.0, 0.0), hold_map=True)

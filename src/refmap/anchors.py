@@ -46,6 +46,8 @@ class RegionAnchor:
 
     region: object
 
+    supports_3d = True
+
     def mask(self, grid: Grid) -> np.ndarray:
         return self.weight(grid) > 0.5
 
@@ -54,9 +56,8 @@ class RegionAnchor:
 
         (A ramp over two cells, tried as for the pivot, left single-cell velocity spots
         round the stick's foot: 0.71 against 0.56 for the hard clamp at 64^2, t = 8.)"""
-        X, Y = grid.mesh("node")
         with jax.ensure_compile_time_eval():  # a constant, even when called under jit
-            d = np.asarray(self.region(X, Y))
+            d = np.asarray(self.region(*grid.mesh("node")))
         return (d < 0).astype(float)
 
     def check(self, grid: Grid, inside) -> None:
@@ -65,16 +66,17 @@ class RegionAnchor:
         nothing and the solid would float free without a word."""
         held = self.mask(grid)
         if not (held & np.asarray(inside)).any():
-            X, Y = grid.mesh("node")
+            Xn = grid.mesh("node")
             where = (
                 f"it holds {int(held.sum())} grid nodes, none inside the solid"
                 if held.any()
                 else "it holds no grid node at all"
             )
+            spans = ", ".join(f"{'xyz'[c]} in [{Xc[inside].min():.3g}, {Xc[inside].max():.3g}]"
+                              for c, Xc in enumerate(Xn))
             raise ValueError(
                 f"anchor region {self.region!r} holds no node of the solid ({where}; the "
-                f"solid spans x in [{X[inside].min():.3g}, {X[inside].max():.3g}], y in "
-                f"[{Y[inside].min():.3g}, {Y[inside].max():.3g}], h = {grid.h:.3g})"
+                f"solid spans {spans}, h = {grid.h:.3g})"
             )
 
     def velocity_weight(self, grid: Grid) -> np.ndarray:
@@ -93,27 +95,75 @@ class RegionAnchor:
 
 @dataclass(frozen=True)
 class PivotAnchor:
-    """A frictionless pin at ``center`` (thesis rotor: fit radius 0.4, hold radius 0.3)."""
+    """A frictionless pin at ``center`` (thesis rotor: fit radius 0.4, hold radius 0.3).
 
-    center: tuple[float, float] = (0.0, 0.0)
+    In 3D it is an axle: ``center`` has three coordinates and the axle runs through it
+    along ``axis`` (default z) over ``half_length`` either side (None: through the whole
+    box).  The body turns freely about the axle (the rate omega is fitted over the nodes
+    within ``fit_radius`` of the axle's line and of its length) and cannot translate; held
+    nodes get the rigid rotation ``omega axis x r``.  ``hold_map`` is 2D only.
+    """
+
+    center: tuple = (0.0, 0.0)
     fit_radius: float = 0.4
     hold_radius: float = 0.3
     hold_map: bool = False
+    axis: tuple | None = None
+    half_length: float | None = None
+
+    supports_3d = True
 
     def __post_init__(self):
         if not (self.fit_radius > 0 and self.hold_radius > 0):
             raise ValueError(
                 f"pivot radii must be > 0, got fit_radius={self.fit_radius!r}, hold_radius={self.hold_radius!r}"
             )
-        object.__setattr__(self, "center", tuple(float(c) for c in self.center))
+        center = tuple(float(c) for c in self.center)
+        if len(center) not in (2, 3):
+            raise ValueError(f"pivot center must have 2 (2D) or 3 (3D) coordinates, got {self.center!r}")
+        object.__setattr__(self, "center", center)
+        if len(center) == 2:
+            if self.axis is not None or self.half_length is not None:
+                raise ValueError("a 2D pivot takes no axis or half_length (a 3D pivot has a 3D center)")
+            return
+        if self.hold_map:
+            raise ValueError("pivot hold_map is 2D only (a 3D pivot leaves the map to the advection)")
+        a = np.asarray((0.0, 0.0, 1.0) if self.axis is None else self.axis, dtype=float)
+        if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) == 0:
+            raise ValueError(f"pivot axis must be a non-zero 3-vector, got {self.axis!r}")
+        object.__setattr__(self, "axis", tuple(float(c) for c in a / np.linalg.norm(a)))
+        if self.half_length is not None and not self.half_length > 0:
+            raise ValueError(f"pivot half_length must be > 0 or None, got {self.half_length!r}")
+
+    def _check_dim(self, grid):
+        if len(self.center) != grid.ndim:
+            raise ValueError(f"pivot center {self.center} has {len(self.center)} coordinates, the grid is "
+                             f"{grid.ndim}D")
+
+    def _axle(self, grid):
+        """3D: (r_perp (3, ...), |r_perp|, along-axle mask) of the node coordinates."""
+        Xn = np.stack(grid.mesh("node"))
+        r = Xn - np.asarray(self.center).reshape(3, 1, 1, 1)
+        a = np.asarray(self.axis).reshape(3, 1, 1, 1)
+        along = np.sum(r * a, axis=0)
+        rp = r - along[None] * a
+        within = np.ones(along.shape, bool) if self.half_length is None else np.abs(along) <= self.half_length
+        return rp, np.sqrt(np.sum(rp * rp, axis=0)), within
 
     def velocity_weight(self, grid: Grid) -> np.ndarray:
         """Node weight of the rigid rotation in :meth:`apply` (v -> w v_rot + (1 - w) v)."""
+        self._check_dim(grid)
+        if grid.ndim == 3:
+            _, dist, within = self._axle(grid)
+            return _ramp(dist - self.hold_radius, grid.h) * within
         X, Y = grid.mesh("node")
         r = np.hypot(X - self.center[0], Y - self.center[1])
         return _ramp(r - self.hold_radius, grid.h)
 
     def apply(self, grid: Grid, v, xi, xi0):
+        self._check_dim(grid)
+        if grid.ndim == 3:
+            return self._apply_3d(grid, v, xi)
         X, Y = grid.mesh("node")
         xn, yn = X - self.center[0], Y - self.center[1]
         r2n = xn * xn + yn * yn
@@ -136,6 +186,23 @@ class PivotAnchor:
             xi = w * xi_rot + (1.0 - w) * xi
         return v, xi
 
+    def _apply_3d(self, grid, v, xi):
+        rp, dist, within = self._axle(grid)
+        fit_n = (dist < self.fit_radius) & within
+        if not fit_n.any():
+            raise ValueError(f"pivot fit_radius {self.fit_radius} holds no grid node; refine the grid")
+        a = np.asarray(self.axis).reshape(3, 1, 1, 1)
+        t = np.cross(a, rp, axis=0)  # a x r_perp: the rigid rotation's velocity per unit omega
+        fit = jnp.asarray(fit_n)
+        tj = jnp.asarray(t)
+        omega = jnp.sum(jnp.where(fit, jnp.sum(tj * v, axis=0), 0.0)) / jnp.sum(
+            jnp.where(fit, jnp.asarray(dist * dist), 0.0))
+        w = jnp.asarray(_ramp(dist - self.hold_radius, grid.h) * within)
+        return w * omega * tj + (1.0 - w) * v, xi
+
     def to_dict(self):
-        return {"type": "pivot", "center": list(self.center), "fit_radius": self.fit_radius,
-                "hold_radius": self.hold_radius, "hold_map": self.hold_map}
+        out = {"type": "pivot", "center": list(self.center), "fit_radius": self.fit_radius,
+               "hold_radius": self.hold_radius, "hold_map": self.hold_map}
+        if len(self.center) == 3:
+            out.update(axis=list(self.axis), half_length=self.half_length)
+        return out

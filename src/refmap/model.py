@@ -1118,7 +1118,7 @@ def check_3d_support(numerics: Numerics, solids, body_forces=()) -> None:
     if n.band_force != "local":
         todo.append(f"numerics.band_force {n.band_force!r}")
     for s in solids:
-        if s.anchor is not None:
+        if s.anchor is not None and not getattr(s.anchor, "supports_3d", False):
             todo.append(f"the anchor of solid {s.name!r} ({type(s.anchor).__name__})")
     for term in body_forces:
         if getattr(term, "ndim", 2) != 3:

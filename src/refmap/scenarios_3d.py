@@ -7,6 +7,10 @@ Importing this module registers them with :func:`refmap.scenarios.scenario`:
 * ``sphere_cavity`` -- a soft sphere in a lid-driven cube (the 2D lid-driven cavity's
   set-up, ``validation/lid_cavity.py``, extruded: Re = 100, a neo-Hookean solid as soft as
   the fluid's dynamic pressure, G = 0.1 rho U^2).
+* ``cross`` -- the thesis's rotor in 3D: a soft cross, a slab 0.8 thick, on an axle along
+  z through its centre, turned by a flow that enters through the left face and leaves
+  through the top face (3D faces take whole-face conditions, so the 2D rotor's half-edge
+  inflow and outflow become two whole faces at right angles).
 
 ``n`` is the number of cells along each axis.  The 3D step has the compressible fluid and
 explicit viscosity only so far, and no contact or anchors (docs/method.md, "Three
@@ -17,9 +21,10 @@ from __future__ import annotations
 
 import math
 
+from refmap.anchors import PivotAnchor
 from refmap.boundary import Boundary, Segment
 from refmap.case import Case
-from refmap.geometry import Sphere
+from refmap.geometry import Box, Sphere, Union
 from refmap.grid import Grid3D
 from refmap.materials import LogNeoHookean, NeoHookean
 from refmap.model import Solid
@@ -68,4 +73,30 @@ def sphere_cavity(n: int = 32) -> Case:
         t_end=4.0,
         frames=40,
         description=DESCRIPTIONS["sphere_cavity"],
+    )
+
+
+@scenario("cross", "3D: a soft cross on an axle, turned by a flow entering on the left and leaving at the top")
+def cross(n: int = 32) -> Case:
+    # the thesis's rotor (arm half length 1.1, half width 0.4, G = kappa = 10) as a slab of
+    # half thickness 0.4 with rounded edges, on an axle along z held over its thickness
+    arm = dict(center=(0.0, 0.0, 0.0), corner_radius=0.15)
+    shape = Union(Box(half_size=(1.1, 0.4, 0.4), **arm), Box(half_size=(0.4, 1.1, 0.4), **arm))
+    solid = Solid(shape=shape, law=NeoHookean(G=10.0, kappa=10.0, rho0=1.0, dim=3), name="cross",
+                  anchor=PivotAnchor(center=(0.0, 0.0, 0.0), fit_radius=0.4, hold_radius=0.3,
+                                     half_length=0.4))
+    # inflow u = 0.2 through the left face, the same flux out through the top face (equal
+    # areas, 4 x 2), slip on the others
+    boundary = Boundary(left=(Segment("velocity", velocity=(0.2, 0.0, 0.0)),), right="slip",
+                        bottom="slip", top=(Segment("velocity", velocity=(0.0, 0.2, 0.0)),),
+                        back="slip", front="slip")
+    return Case(
+        name="cross",
+        grid=Grid3D(n, n, max(8, n // 2), -2.0, 2.0, -2.0, 2.0, -1.0, 1.0),
+        solids=(solid,),
+        boundary=boundary,
+        numerics=Numerics(cfl=0.3),
+        t_end=10.0,
+        frames=40,
+        description=DESCRIPTIONS["cross"],
     )
