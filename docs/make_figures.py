@@ -2,6 +2,7 @@
 
     python docs/make_figures.py            # runs what is missing, then draws
     python docs/make_figures.py fssi       # only the several-solid pictures (docs/fssi.md)
+    python docs/make_figures.py 3d         # only the 3D scenarios (docs/scenarios.md)
 Runs (into runs/doc_*) the thesis's scenarios at 128^2 (stick at 96^2) and the FSSI
 scenarios two_balls and ball_stick at 96^2 with the `refmap run` command and draws panels
 of a field at chosen times, with the interface of every solid, into docs/img/.
@@ -14,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import refmap
-from refmap.io import save_panel_png
+from refmap.io import save_panel_png, save_surface_png
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = {
@@ -34,6 +35,14 @@ FSSI_RUNS = {
         [0.0, 0.5, 1.0, 2.0, 4.0, 8.0],
         "pressure",
     ),
+}
+
+# 3D scenarios (docs/scenarios.md, "3D"): (run options, times drawn); a mid-plane slice of
+# the pressure and a 3D view of the surfaces at the last time
+RUNS_3D = {
+    "sphere_relax": (["--n", "32", "--t-end", "2", "--frames", "8"], [0.0, 0.25, 0.5, 2.0]),
+    "sphere_cavity": (["--n", "32", "--t-end", "4", "--frames", "8"], [0.0, 1.0, 2.0, 4.0]),
+    "cross": (["--n", "32", "--t-end", "4", "--frames", "8"], [0.0, 1.0, 2.0, 4.0]),
 }
 
 
@@ -88,13 +97,30 @@ def fssi_figures():
         print("wrote", out)
 
 
+def figures_3d():
+    """docs/img/<scenario>_pressure.png (the middle z plane at four times) and
+    docs/img/<scenario>_surface.png (the solid's surface at the last time drawn)."""
+    for name, (args, times) in RUNS_3D.items():
+        run = _run(name, args)
+        grid, panels = _panels(run, times, "pressure")
+        out = ROOT / "docs" / "img" / f"{name}_pressure.png"
+        save_panel_png(out, grid, panels, "pressure", "corner", ncols=2)
+        print("wrote", out)
+        t, _, phis = panels[-1]
+        out = ROOT / "docs" / "img" / f"{name}_surface.png"
+        save_surface_png(out, phis, grid, time=t)
+        print("wrote", out)
+
+
 def main():
     (ROOT / "docs" / "img").mkdir(exist_ok=True)
-    what = sys.argv[1:] or ["scenarios", "fssi"]
+    what = sys.argv[1:] or ["scenarios", "fssi", "3d"]
     if "scenarios" in what:
         scenario_figures()
     if "fssi" in what:
         fssi_figures()
+    if "3d" in what:
+        figures_3d()
 
 
 if __name__ == "__main__":
