@@ -637,8 +637,8 @@ def _edge(v: Any, seg_spec: type[SegmentSpec] = SegmentSpec):
 class BoundarySpec(_Table):
     DIM: ClassVar[int] = 2
     key_hints: ClassVar[dict[str, str]] = {
-        "back": f"is the z-low face of a 3D box: {_NEEDS_3D}",
-        "front": f"is the z-high face of a 3D box: {_NEEDS_3D}",
+        "back": "is the z-low face of a 3D box: add dim = 3 to [grid] for a 3D case",
+        "front": "is the z-high face of a 3D box: add dim = 3 to [grid] for a 3D case",
     }
     left: Any = "wall"
     right: Any = "wall"
@@ -1148,13 +1148,14 @@ CaseSpec3 = _case_spec_model(3)
 
 
 def _file_dim(data: Mapping) -> int:
-    """3 when the file's ``[grid]`` says ``dim = 3``, else 2 (a bad ``dim`` is reported by
-    GridSpec, which accepts the same values)."""
+    """3 when the file's ``[grid]`` says ``dim = 3``, else 2.  A bad ``dim`` is reported
+    first (everything else is read by the schema it selects)."""
     grid = data.get("grid")
-    if isinstance(grid, Mapping):
-        v = grid.get("dim")
-        if not isinstance(v, bool) and isinstance(v, int) and v == 3:
-            return 3
+    if isinstance(grid, Mapping) and "dim" in grid:
+        try:
+            return _dim_value(grid["dim"])
+        except _PathError as e:
+            raise CaseFileError(f"grid.dim: {e.msg}", "grid.dim") from None
     return 2
 
 
@@ -1587,7 +1588,8 @@ def _assemble(spec) -> Case:
         m = re.match(r"numerics (\w+)", str(e))
         raise _PathError(("numerics",) + ((m.group(1),) if m else ()), str(e)) from None
     try:
-        boundary = (spec.boundary or BoundarySpec()).boundary()
+        default = BoundarySpec3() if g.dim == 3 else BoundarySpec()  # walls all round
+        boundary = (spec.boundary or default).boundary()
     except ValueError as e:
         raise _PathError(("boundary",), str(e)) from None
     solids = []
