@@ -346,6 +346,19 @@ def test_build_shape_without_a_dimension_reads_both():
 # the example, run
 
 
+def test_the_3d_example_in_the_docs_is_the_example_file():
+    import re
+
+    text = (ROOT / "docs" / "casefiles.md").read_text()
+    section = text.split("## Three dimensions", 1)[1]
+    block = re.findall(r"```toml\n(.*?)```", section, re.S)[0]
+    assert 'name = "sphere_in_flow"' in block
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CaseWarning)
+        assert (case_from_dict(tomllib.loads(block)).case.to_dict()
+                == load_case(ROOT / "examples" / "sphere_in_flow.toml").to_dict())
+
+
 def test_the_3d_example_loads_and_runs_a_few_steps(tmp_path):
     """examples/sphere_in_flow.toml through load_run + Simulation on a coarse grid: frame 0
     is the stream (u = 0.2) with the body at rest inside it (velocity -0.2 added by its

@@ -790,14 +790,15 @@ def build_shape(d: Any, base_dir: str | os.PathLike | None = None, dim: int | No
         {k: v for k, v in d.items() if k != "type"}, fields, f" for shape type {cls.__name__!r}"
     )
     kwargs: dict[str, Any] = {}
-    # the child shapes first: a Translate's offset has as many entries as its child has axes
-    items = sorted((kv for kv in d.items() if kv[0] != "type"),
-                   key=lambda kv: _shape_kind(fields[kv[0]].type)[0] != "shape")
-    for key, value in items:
+    for key, value in d.items():
+        if key == "type":
+            continue
         kind, n = _shape_kind(fields[key].type)
         if cls is Translate and key == "offset":
-            child = kwargs.get("shape")
-            n = child.ndim if isinstance(child, Shape) else (dim or 2)
+            # one number per axis of the child: the grid's; without a grid, 2 or 3 (the
+            # constructor checks it against the child)
+            given = len(value) if isinstance(value, (list, tuple)) else 0
+            n = dim if dim is not None else given if given in (2, 3) else 2
         if kind == "shape":
             try:
                 kwargs[key] = build_shape(value, base_dir, dim)
