@@ -46,7 +46,8 @@ class Case:
     contact: Any = None
     #: the velocity at t = 0 on every node, fluid and solids alike: None (at rest), a
     #: callable ``f(x, y) -> (u, v)`` on the node coordinate arrays, an array of shape
-    #: ``(2, nx, ny)``, or a :mod:`refmap.initial` field (a formula or a file).  Each
+    #: ``(2, nx, ny)``, or a :mod:`refmap.initial` field (a formula or a file); on a 3D
+    #: grid ``f(x, y, z) -> (u, v, w)``, ``(3, nx, ny, nz)``, formulas u, v, w.  Each
     #: ``Solid.velocity`` is added to it, weighted by the solid's fraction (see
     #: :meth:`refmap.model.Model.initial_state`).  Stored as a :mod:`refmap.initial` field.
     initial_velocity: Any = None
@@ -58,7 +59,8 @@ class Case:
             object.__setattr__(self, "gravity", (0.0,) * getattr(self.grid, "ndim", 2))
 
         try:
-            object.__setattr__(self, "initial_velocity", as_initial_velocity(self.initial_velocity))
+            object.__setattr__(self, "initial_velocity", as_initial_velocity(
+                self.initial_velocity, getattr(self.grid, "ndim", 2)))
         except InitialVelocityError as e:
             key = f"initial_velocity.{e.key}" if e.key else "initial_velocity"
             raise CaseError(f"case {self.name!r}: {key}: {e.msg}") from None
@@ -186,7 +188,7 @@ class Case:
         return self
 
     def initial_velocity_field(self):
-        """The ``(2, nx, ny)`` node values of :attr:`initial_velocity` (None when it is
+        """The ``(d, nx, ny[, nz])`` node values of :attr:`initial_velocity` (None when it is
         None), checked: shape against the grid, finite values; a callable that raises or
         returns something else is a :class:`CaseError` naming it."""
         from refmap.initial import InitialVelocityError

@@ -16,6 +16,15 @@ A case file mirrors :class:`refmap.case.Case`::
     [[solids]]  name, shape (a geometry table, CSG nested), law (a material table),
                 strain, strain_center, velocity, anchor (region or pivot)
 
+A 3D case says so in its grid: ``[grid] dim = 3`` (default 2).  Then ``[grid]`` takes
+``nz``, ``az``, ``bz`` too (``n`` sets nx, and ny, nz follow for cubic cells), gravity,
+velocities and ``strain_center`` have three numbers, ``strain`` is 3x3, ``[boundary]``
+has the faces ``back`` (z-low) and ``front`` (z-high), shapes are the 3D types of
+``refmap.geometry.SHAPES_3D`` (and CSG / transforms of them), laws get ``dim = 3`` without
+writing it, and ``[initial_velocity]`` takes ``u``, ``v``, ``w`` in x, y, z (a file holds
+``(3, nx, ny, nz)``).  Settings the 3D step does not have yet (anchors, contact, the
+incompressible fluid, implicit viscosity) are errors naming their key.
+
 Public API
 ----------
 * :func:`load_case` ``(path, overrides=None) -> Case``: parse, apply overrides, validate.
@@ -48,7 +57,7 @@ import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import jax.numpy as jnp
 import numpy as np
@@ -65,11 +74,11 @@ from pydantic import (
 )
 
 from refmap.anchors import PivotAnchor, RegionAnchor
-from refmap.boundary import EDGES, Boundary, Segment
+from refmap.boundary import AXIS_FACES, EDGES, FACES, Boundary, Segment
 from refmap.case import Case, CaseError
 from refmap.contact import Contact
-from refmap.geometry import SHAPES, Shape
-from refmap.grid import Grid
+from refmap.geometry import SHAPES, SHAPES_3D, Shape, Translate
+from refmap.grid import Grid, Grid3D
 from refmap.initial import (
     InitialVelocityError,
     VelocityExpression,
@@ -77,7 +86,7 @@ from refmap.initial import (
     as_initial_velocity,
 )
 from refmap.materials import LAWS, law_from_dict
-from refmap.model import Solid
+from refmap.model import Solid, check_3d_support
 from refmap.state import FluidParams, Numerics
 
 __all__ = [
@@ -264,6 +273,9 @@ Int = Annotated[int, Strict()]
 Bool = Annotated[bool, Strict()]
 Str = Annotated[str, Strict()]
 Pair = tuple[Num, Num]
+Triple = tuple[Num, Num, Num]
+#: the hint for a 3D key in a 2D case file
+_NEEDS_3D = "is for a 3D case: add dim = 3 to [grid]"
 
 
 def _number(v: Any, path: tuple = ()) -> float:
@@ -279,15 +291,21 @@ def _number(v: Any, path: tuple = ()) -> float:
 
 
 class _Table(BaseModel):
-    """A TOML table: unknown keys are errors (with a suggestion)."""
+    """A TOML table: unknown keys are errors (with a suggestion, or the hint of
+    ``key_hints`` for keys that belong to the other dimension)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True)
+    #: key -> why it is not accepted here (e.g. a 3D key in a 2D file)
+    key_hints: ClassVar[dict[str, str]] = {}
 
     @model_validator(mode="before")
     @classmethod
     def _known_keys(cls, data: Any) -> Any:
         if not isinstance(data, Mapping):
             raise _PathError((), f"must be a table (got {_fmt_value(data)})")
+        for k in data:
+            if k not in cls.model_fields and k in cls.key_hints:
+                raise _PathError((k,), f"{cls.key_hints[k]} (got {_fmt_value(data[k])})")
         _check_keys(data, cls.model_fields)
         return data
 
@@ -374,17 +392,43 @@ ContactSpec = _spec_from_dataclass(
 )
 
 
+Cells = Annotated[int, Strict(), Field(ge=8, le=MAX_CELLS)]
+
+
+def _dim_value(v: Any) -> int:
+    """``[grid] dim``: 2 or 3 (an integer)."""
+    if isinstance(v, bool) or not isinstance(v, int) or v not in (2, 3):
+        raise _PathError((), f"must be 2 or 3 (got {_fmt_value(v)})")
+    return v
+
+
 class GridSpec(_Table):
-    n: Annotated[int, Strict(), Field(ge=8, le=MAX_CELLS)] | None = None
-    nx: Annotated[int, Strict(), Field(ge=8, le=MAX_CELLS)] | None = None
-    ny: Annotated[int, Strict(), Field(ge=8, le=MAX_CELLS)] | None = None
+    key_hints: ClassVar[dict[str, str]] = {}
+    #: 2 (default) or 3: a 3D case file says so here
+    dim: Any = 2
+    n: Cells | None = None
+    nx: Cells | None = None
+    ny: Cells | None = None
+    nz: Cells | None = None
     ax: Num = -2.0
     bx: Num = 2.0
     ay: Num = -2.0
     by: Num = 2.0
+    az: Num | None = None  # 3D only; -2 when left out
+    bz: Num | None = None  # 3D only; 2 when left out
+
+    @field_validator("dim", mode="before")
+    @classmethod
+    def _dim(cls, v):
+        return _dim_value(v)
 
     @model_validator(mode="after")
     def _consistent(self):
+        if self.dim == 3:
+            return self._consistent_3d()
+        for key in ("nz", "az", "bz"):
+            if getattr(self, key) is not None:
+                raise _PathError((key,), f"{_NEEDS_3D} (got {_fmt_value(getattr(self, key))})")
         if self.n is not None and (self.nx is not None or self.ny is not None):
             key = "nx" if self.nx is not None else "ny"
             raise _PathError(
@@ -412,14 +456,64 @@ class GridSpec(_Table):
                 )
         return self
 
-    def cells(self) -> tuple[int, int]:
+    def z_bounds(self) -> tuple[float, float]:
+        """(az, bz) of a 3D grid, with their defaults."""
+        return (-2.0 if self.az is None else self.az, 2.0 if self.bz is None else self.bz)
+
+    def _consistent_3d(self):
+        names = ("nx", "ny", "nz")
+        given = [k for k in names if getattr(self, k) is not None]
+        if self.n is not None and given:
+            key = given[0]
+            raise _PathError(
+                (key,),
+                f"give either n or nx, ny and nz, not both (got n = {self.n}, "
+                f"{key} = {getattr(self, key)})",
+            )
+        if self.n is None and len(given) < 3:
+            missing = next(k for k in names if k not in given) if given else "n"
+            raise _PathError((), f"missing required key {missing!r} (give n, or nx, ny and nz)")
+        az, bz = self.z_bounds()
+        for a, lo, hi in (("x", self.ax, self.bx), ("y", self.ay, self.by), ("z", az, bz)):
+            if not hi > lo:
+                raise _PathError((f"b{a}",), f"must be > a{a} = {lo!r} (got {hi!r})")
+        lengths = (self.bx - self.ax, self.by - self.ay, bz - az)
+        if not all(math.isfinite(v) for v in lengths):
+            raise _PathError((), "the domain is too large to represent")
+        if self.n is not None:
+            for a, length in (("y", lengths[1]), ("z", lengths[2])):
+                cells = self.n * length / lengths[0]
+                if not (8 <= cells <= MAX_CELLS):
+                    raise _PathError(
+                        ("n",),
+                        f"gives n{a} = n * (b{a} - a{a}) / (bx - ax) = {cells:.4g} cells, "
+                        f"outside [8, {MAX_CELLS}]; give nx, ny and nz (got {self.n})",
+                    )
+        return self
+
+    def cells(self) -> tuple[int, ...]:
+        if self.dim == 3:
+            if self.n is None:
+                return self.nx, self.ny, self.nz
+            az, bz = self.z_bounds()
+            return (self.n, _derived_ny(self.n, self.ax, self.bx, self.ay, self.by),
+                    _derived_ny(self.n, self.ax, self.bx, az, bz))
         if self.n is None:
             return self.nx, self.ny
         return self.n, _derived_ny(self.n, self.ax, self.bx, self.ay, self.by)
 
+    def grid(self):
+        """The :class:`~refmap.grid.Grid` (or :class:`~refmap.grid.Grid3D`) of the table."""
+        if self.dim == 3:
+            nx, ny, nz = self.cells()
+            return Grid3D(nx, ny, nz, self.ax, self.bx, self.ay, self.by, *self.z_bounds())
+        nx, ny = self.cells()
+        return Grid(nx, ny, self.ax, self.bx, self.ay, self.by)
+
 
 def _derived_ny(n, ax, bx, ay, by) -> int:
-    """Cells along y for ``n`` along x: square cells (as close as the grid allows)."""
+    """Cells along y (or z, given az, bz) for ``n`` along x: square cells (as close as the
+    grid allows)."""
     return max(8, int(round(n * (by - ay) / (bx - ax))))
 
 
@@ -438,6 +532,7 @@ class OutputSpec(_Table):
 
 
 class SegmentSpec(_Table):
+    DIM: ClassVar[int] = 2
     kind: Literal["wall", "slip", "velocity", "outflow"] = "wall"
     start: Annotated[float, Strict(), Field(ge=0, le=1, allow_inf_nan=False)] = 0.0
     end: Annotated[float, Strict(), Field(ge=0, le=1, allow_inf_nan=False)] = 1.0
@@ -475,15 +570,34 @@ class SegmentSpec(_Table):
         )
 
 
-def _edge(v: Any):
+class SegmentSpec3(SegmentSpec):
+    """A segment of a 3D face: three velocity components, the whole face only."""
+
+    DIM: ClassVar[int] = 3
+    velocity: Triple = (0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _whole_face(self):
+        for key, whole in (("start", 0.0), ("end", 1.0)):
+            if getattr(self, key) != whole:
+                raise _PathError(
+                    (key,),
+                    f"must be {whole:g}: a 3D face takes whole-face segments only (partial "
+                    f"faces are not supported in 3D yet) (got {_fmt_value(getattr(self, key))})",
+                )
+        return self
+
+
+def _edge(v: Any, seg_spec: type[SegmentSpec] = SegmentSpec):
     """An edge: one of EDGE_WORDS, a segment table, or a list of segment tables."""
     if isinstance(v, str):
         if v not in EDGE_WORDS:
             hint = _did_you_mean(v, EDGE_WORDS)
             if v in ("velocity", "inflow"):
+                example = "[0.1, 0.0]" if seg_spec.DIM == 2 else "[0.1, 0.0, 0.0]"
                 hint = (
                     "; a prescribed velocity needs a segment table, e.g. "
-                    '[{kind = "velocity", velocity = [0.1, 0.0]}]'
+                    f'[{{kind = "velocity", velocity = {example}}}]'
                 )
             raise _PathError(
                 (),
@@ -504,7 +618,7 @@ def _edge(v: Any):
     segs = []
     for i, s in enumerate(v):
         try:
-            segs.append(SegmentSpec.model_validate(s))
+            segs.append(seg_spec.model_validate(s))
         except ValidationError as e:
             raise _from_validation_error(e, (i,)) from None
     cover = sorted((s.start, s.end) for s in segs)
@@ -521,6 +635,11 @@ def _edge(v: Any):
 
 
 class BoundarySpec(_Table):
+    DIM: ClassVar[int] = 2
+    key_hints: ClassVar[dict[str, str]] = {
+        "back": "is the z-low face of a 3D box: add dim = 3 to [grid] for a 3D case",
+        "front": "is the z-high face of a 3D box: add dim = 3 to [grid] for a 3D case",
+    }
     left: Any = "wall"
     right: Any = "wall"
     bottom: Any = "wall"
@@ -533,7 +652,7 @@ class BoundarySpec(_Table):
 
     @model_validator(mode="after")
     def _pairs(self):
-        for a, b in (("left", "right"), ("bottom", "top")):
+        for a, b in AXIS_FACES[: self.DIM]:
             ea, eb = getattr(self, a), getattr(self, b)
             if (ea == "periodic") == (eb == "periodic"):
                 continue
@@ -549,10 +668,23 @@ class BoundarySpec(_Table):
 
     def boundary(self) -> Boundary:
         kw = {}
-        for name in EDGES:
+        for name in EDGES if self.DIM == 2 else FACES:
             e = getattr(self, name)
             kw[name] = e if isinstance(e, str) else tuple(s.segment() for s in e)
         return Boundary(**kw)
+
+
+class BoundarySpec3(BoundarySpec):
+    """The six faces of a 3D box: the four edges of 2D, then back (z-low), front (z-high)."""
+
+    DIM: ClassVar[int] = 3
+    back: Any = "wall"
+    front: Any = "wall"
+
+    @field_validator("left", "right", "bottom", "top", "back", "front", mode="before")
+    @classmethod
+    def _edges(cls, v):
+        return _edge(v, SegmentSpec3)
 
 
 def _edge_dict(e):
@@ -588,28 +720,64 @@ def _exc_param(e: Exception) -> str | None:
     return m.group(1) if m else None
 
 
-def build_shape(d: Any, base_dir: str | os.PathLike | None = None) -> Shape:
+def _shape_dim(cls: type) -> int | None:
+    """The dimension of a shape class: 2 or 3 for a primitive, None for the CSG operations
+    and transforms (their ``ndim`` is their children's)."""
+    nd = getattr(cls, "ndim", 2)
+    return nd if isinstance(nd, int) else None
+
+
+def _lookup(registry: Mapping, name: str):
+    return registry.get(name) or {k.lower(): v for k, v in registry.items()}.get(name.lower())
+
+
+def build_shape(d: Any, base_dir: str | os.PathLike | None = None, dim: int | None = None) -> Shape:
     """A shape from its table (``Shape.to_dict`` format, or a ``mask``/``sdf`` file table).
 
-    Raises ``_PathError`` naming the key path inside the table.
+    ``dim`` (2 or 3, the grid's dimension) accepts the primitives of that dimension only
+    (with the CSG operations and transforms), and names the type, its dimension and the
+    grid's for a primitive of the other one; None accepts both (as
+    ``geometry.shape_from_dict``).  Raises ``_PathError`` naming the key path inside the
+    table.
     """
     if isinstance(d, Shape):
         return d
     if not isinstance(d, Mapping):
         raise _PathError((), f"must be a shape table with a 'type' key (got {_fmt_value(d)})")
-    registry = {**SHAPES, "ArrayShape": ArrayShape}
-    known = sorted(SHAPES) + ["mask", "sdf"]
+    every = {**SHAPES, **SHAPES_3D, "ArrayShape": ArrayShape}
+    if dim is None:
+        registry = every
+        known = sorted({**SHAPES, **SHAPES_3D}) + ["mask", "sdf"]
+    else:
+        registry = {k: c for k, c in every.items() if _shape_dim(c) in (None, dim)}
+        known = sorted(k for k, c in {**SHAPES, **SHAPES_3D}.items() if _shape_dim(c) in (None, dim))
+        known += ["mask", "sdf"] if dim == 2 else []
     if "type" not in d:
         raise _PathError((), f"missing required key 'type' (one of {', '.join(known)})")
     name = d["type"]
     if not isinstance(name, str):
         raise _PathError(("type",), f"must be a string (got {_fmt_value(name)})")
     if name.lower() in _SHAPE_ALIASES:
+        if dim == 3:
+            raise _PathError(
+                ("type",),
+                f"a {name.lower()!r} shape is 2D (read from a 2D array or a picture) but the "
+                f"grid is 3D; use the 3D types: {', '.join(known)} (got {name!r})",
+            )
         _check_keys(d, ("type", "file", "extent", "invert"), f" for shape type {name!r}")
         d = {**d, "type": "ArrayShape", "mode": name.lower()}
         name = "ArrayShape"
-    cls = registry.get(name) or {k.lower(): v for k, v in registry.items()}.get(name.lower())
+    cls = _lookup(registry, name)
     if cls is None:
+        other = _lookup(every, name)
+        if other is not None:
+            nd = _shape_dim(other)
+            raise _PathError(
+                ("type",),
+                f"shape type {other.__name__!r} is {nd}D but the grid is {dim}D"
+                + (" (3D case files say dim = 3 in [grid])" if nd == 3 else "")
+                + f"; {dim}D types: {', '.join(known)} (got {name!r})",
+            )
         raise _PathError(
             ("type",),
             f"unknown shape type {name!r}{_did_you_mean(name, known)}; "
@@ -626,9 +794,14 @@ def build_shape(d: Any, base_dir: str | os.PathLike | None = None) -> Shape:
         if key == "type":
             continue
         kind, n = _shape_kind(fields[key].type)
+        if cls is Translate and key == "offset":
+            # one number per axis of the child: the grid's; without a grid, 2 or 3 (the
+            # constructor checks it against the child)
+            given = len(value) if isinstance(value, (list, tuple)) else 0
+            n = dim if dim is not None else given if given in (2, 3) else 2
         if kind == "shape":
             try:
-                kwargs[key] = build_shape(value, base_dir)
+                kwargs[key] = build_shape(value, base_dir, dim)
             except _PathError as e:
                 raise _PathError((key,) + e.path, e.msg) from None
         elif kind == "float":
@@ -671,8 +844,12 @@ def build_shape(d: Any, base_dir: str | os.PathLike | None = None) -> Shape:
 _POSITIVE_LAW_KEYS = ("G", "kappa", "rho0", "mu", "E")
 
 
-def build_law(d: Any):
-    """A material law from ``{law = "neo_hookean", G = 10, kappa = 10, rho0 = 1}``."""
+def build_law(d: Any, dim: int | None = None):
+    """A material law from ``{law = "neo_hookean", G = 10, kappa = 10, rho0 = 1}``.
+
+    ``dim`` (the grid's dimension) is given to the law: a case file does not write it (a
+    ``dim`` key that differs is an error naming it).  None: the table's own ``dim``, else 2.
+    """
     if not isinstance(d, Mapping):
         raise _PathError(
             (),
@@ -698,7 +875,18 @@ def build_law(d: Any):
         if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
     ]
     allowed = set(names)
-    params = {k: v for k, v in d.items() if k != "law"}
+    params = {k: v for k, v in d.items() if k not in ("law", "dim")}
+    if "dim" in d:
+        given = d["dim"]
+        if isinstance(given, bool) or not isinstance(given, int) or given not in (2, 3):
+            raise _PathError(("dim",), f"must be 2 or 3 (got {_fmt_value(given)})")
+        if dim is not None and given != dim:
+            raise _PathError(
+                ("dim",),
+                f"the law is {given}D but the grid is {dim}D; leave dim out (a law takes the "
+                f"grid's dimension) (got {given})",
+            )
+        dim = given
     alternatives = []
     if key == "svk":
         alternatives = [{"E", "nu"}, {"G", "kappa"}]
@@ -722,8 +910,11 @@ def build_law(d: Any):
         missing = [n for n in required if n not in params]
         if missing:
             raise _PathError((), f"missing required key {missing[0]!r} for law {key!r}")
+    table = {k: v for k, v in d.items() if k != "dim"}
+    if dim == 3:
+        table["dim"] = 3
     try:
-        return law_from_dict(dict(d))
+        return law_from_dict(table)
     except (ValueError, TypeError, ArithmeticError) as e:
         p = _exc_param(e)
         msg = re.sub(r"^\w+: ", "", str(e))
@@ -806,6 +997,7 @@ def build_anchor(d: Any, base_dir=None):
 
 
 class SolidSpec(_Table):
+    DIM: ClassVar[int] = 2
     name: Str = "solid"
     shape: Any
     law: Any
@@ -822,17 +1014,21 @@ class SolidSpec(_Table):
     @field_validator("shape", mode="before")
     @classmethod
     def _shape(cls, v, info: ValidationInfo):
-        return build_shape(v, _base_dir(info))
+        return build_shape(v, _base_dir(info), cls.DIM)
 
     @field_validator("law", mode="before")
     @classmethod
     def _law(cls, v):
-        return build_law(v)
+        return build_law(v, cls.DIM)
 
     @model_validator(mode="after")
     def _strain(self):
-        (a, b), (c, d) = self.strain
-        det = a * d - b * c
+        if self.DIM == 2:
+            (a, b), (c, d) = self.strain
+            det = a * d - b * c
+        else:
+            with np.errstate(all="ignore"):
+                det = float(np.linalg.det(np.asarray(self.strain, dtype=float)))
         if not (math.isfinite(det) and det > 0):
             raise _PathError(
                 ("strain",),
@@ -842,36 +1038,68 @@ class SolidSpec(_Table):
         return self
 
 
-def build_initial_velocity(d: Any, base_dir: str | os.PathLike | None = None):
-    """The ``[initial_velocity]`` table: ``{u = FORMULA, v = FORMULA}`` (a left-out
-    component is 0) or ``{file = PATH, dataset = NAME}`` (``.npy`` or ``.h5``, relative to
-    the case file).  Raises ``_PathError`` naming the key inside the table."""
+class SolidSpec3(SolidSpec):
+    """A solid of a 3D case: 3x3 strain, three-number centre and velocity, no anchor yet."""
+
+    DIM: ClassVar[int] = 3
+    strain: tuple[Triple, Triple, Triple] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    strain_center: Triple = (0.0, 0.0, 0.0)
+    velocity: Triple = (0.0, 0.0, 0.0)
+
+    @field_validator("anchor", mode="before")
+    @classmethod
+    def _anchor(cls, v, info: ValidationInfo):
+        if v is None:
+            return None
+        raise _PathError(
+            (),
+            "not available in 3D yet: anchors (region and pivot anchors are 2D only so "
+            f"far; leave the anchor out) (got {_fmt_value(v)})",
+        )
+
+
+def build_initial_velocity(d: Any, base_dir: str | os.PathLike | None = None, dim: int = 2):
+    """The ``[initial_velocity]`` table: ``{u = FORMULA, v = FORMULA}`` (3D: ``w`` too; a
+    left-out component is 0) or ``{file = PATH, dataset = NAME}`` (``.npy`` or ``.h5``,
+    relative to the case file).  ``dim`` is the grid's dimension.  Raises ``_PathError``
+    naming the key inside the table."""
     if d is None:
         return None
+    comps = ("u", "v") if dim == 2 else ("u", "v", "w")
+    formulas = ", ".join(f'{k} = "FORMULA"' for k in comps)
     if not isinstance(d, Mapping):
         raise _PathError(
             (),
-            'must be a table: {u = "FORMULA", v = "FORMULA"} or {file = "v0.npy"} '
+            f'must be a table: {{{formulas}}} or {{file = "v0.npy"}} '
             f"(got {_fmt_value(d)})",
         )
-    _check_keys(d, ("u", "v", "file", "dataset"))
-    formula = [k for k in ("u", "v") if k in d]
+    if dim == 2 and "w" in d:
+        raise _PathError(
+            (),
+            "unknown key 'w': w is the z component, for a 3D case (add dim = 3 to [grid]); a 2D "
+            f"case takes u and v (got w = {_fmt_value(d['w'])})",
+        )
+    _check_keys(d, comps + ("file", "dataset"))
+    formula = [k for k in comps if k in d]
+    names = "u, v" if dim == 2 else "u, v, w"
+    variables = "x and y" if dim == 2 else "x, y and z"
     if "file" in d and formula:
         raise _PathError(
-            (formula[0],), f"give either formulas u, v or a file, not both (got file = {_fmt_value(d['file'])})"
+            (formula[0],), f"give either formulas {names} or a file, not both (got file = {_fmt_value(d['file'])})"
         )
     if "file" not in d and not formula:
         if "dataset" in d:
             raise _PathError((), "missing required key 'file' (dataset names a dataset in it)")
-        raise _PathError((), "needs u and/or v (formulas in x and y), or file")
-    for k in ("u", "v", "file", "dataset"):
+        some = "u and/or v" if dim == 2 else "u, v and/or w"
+        raise _PathError((), f"needs {some} (formulas in {variables}), or file")
+    for k in comps + ("file", "dataset"):
         if k in d and (isinstance(d[k], bool) or not isinstance(d[k], (str, int, float)) or (
             k in ("file", "dataset") and not isinstance(d[k], str))):
-            what = "a formula in x and y (a string)" if k in ("u", "v") else "a string"
+            what = f"a formula in {variables} (a string)" if k in comps else "a string"
             raise _PathError((k,), f"must be {what} (got {_fmt_value(d[k])})")
     try:
         if formula:
-            return VelocityExpression(d.get("u", "0"), d.get("v", "0"))
+            return VelocityExpression(d.get("u", "0"), d.get("v", "0"), d.get("w"), dim)
         f = d["file"]
         if base_dir is not None:
             f = str(Path(base_dir, f))  # relative to the case file
@@ -885,30 +1113,51 @@ def _initial_velocity_validator(cls, v, info: ValidationInfo):
     return build_initial_velocity(v, _base_dir(info))
 
 
-def _case_spec_model():
+def _initial_velocity_validator_3d(cls, v, info: ValidationInfo):
+    return build_initial_velocity(v, _base_dir(info), 3)
+
+
+def _case_spec_model(dim: int = 2):
+    """The schema of a whole case file of dimension ``dim`` (``[grid] dim``)."""
     fields = dict(
         name=(Str | None, None),
         description=(Str, ""),
-        gravity=(Pair, (0.0, 0.0)),
+        gravity=(Pair, (0.0, 0.0)) if dim == 2 else (Triple, (0.0, 0.0, 0.0)),
         grid=(GridSpec, ...),
         fluid=(FluidSpec, None),
         time=(TimeSpec, None),
         numerics=(NumericsSpec, None),
         output=(OutputSpec, None),
-        boundary=(BoundarySpec, None),
-        solids=(list[SolidSpec], []),
+        boundary=(BoundarySpec if dim == 2 else BoundarySpec3, None),
+        solids=(list[SolidSpec if dim == 2 else SolidSpec3], []),
     )
     fields["contact"] = (ContactSpec | None, None)
     fields["initial_velocity"] = (Any, None)
+    check = _initial_velocity_validator if dim == 2 else _initial_velocity_validator_3d
     validators = {
         "_initial_velocity": field_validator("initial_velocity", mode="before")(
-            classmethod(_initial_velocity_validator)
+            classmethod(check)
         )
     }
-    return create_model("CaseSpec", __base__=_Table, __validators__=validators, **fields)
+    name = "CaseSpec" if dim == 2 else "CaseSpec3"
+    return create_model(name, __base__=_Table, __validators__=validators, **fields)
 
 
 CaseSpec = _case_spec_model()
+#: the schema of a 3D case file (``[grid] dim = 3``)
+CaseSpec3 = _case_spec_model(3)
+
+
+def _file_dim(data: Mapping) -> int:
+    """3 when the file's ``[grid]`` says ``dim = 3``, else 2.  A bad ``dim`` is reported
+    first (everything else is read by the schema it selects)."""
+    grid = data.get("grid")
+    if isinstance(grid, Mapping) and "dim" in grid:
+        try:
+            return _dim_value(grid["dim"])
+        except _PathError as e:
+            raise CaseFileError(f"grid.dim: {e.msg}", "grid.dim") from None
+    return 2
 
 
 # --------------------------------------------------------------------------------------------
@@ -1186,6 +1435,7 @@ OVERRIDES = {
     "n": ("grid", "n"),
     "nx": ("grid", "nx"),
     "ny": ("grid", "ny"),
+    "nz": ("grid", "nz"),
     "t_end": ("time", "t_end"),
     "frames": ("time", "frames"),
     "cfl": ("numerics", "cfl"),
@@ -1235,6 +1485,9 @@ def _apply_overrides(data: dict, overrides: Mapping | None) -> tuple[dict, Any]:
                 ):
                     grid["nx"] = value
                     grid["ny"] = max(8, int(round(ny * value / nx)))
+                    nz = grid.get("nz")
+                    if isinstance(nz, int) and not isinstance(nz, bool):  # 3D: nz too
+                        grid["nz"] = max(8, int(round(nz * value / nx)))
                     continue
         node = data
         for p in path[:-1]:
@@ -1269,8 +1522,9 @@ def case_from_dict(
     data, out_override = _apply_overrides(dict(data), overrides)
     if "name" not in data and source is not None:
         data["name"] = Path(source).stem
+    schema = CaseSpec3 if _file_dim(data) == 3 else CaseSpec
     try:
-        spec = CaseSpec.model_validate(data, context={"base_dir": base_dir})
+        spec = schema.model_validate(data, context={"base_dir": base_dir})
     except ValidationError as e:
         lines = []
         for err in e.errors():
@@ -1287,6 +1541,8 @@ def case_from_dict(
         raise _context(e) from None
     try:
         case = _assemble(spec)
+        if case.grid.ndim == 3:
+            _check_3d(case)
     except _PathError as e:
         raise _context(e) from None
     from refmap.resources import check_memory
@@ -1322,9 +1578,8 @@ def case_from_dict(
 
 def _assemble(spec) -> Case:
     g = spec.grid
-    nx, ny = g.cells()
     try:
-        grid = Grid(nx, ny, g.ax, g.bx, g.ay, g.by)
+        grid = g.grid()
     except ValueError as e:
         raise _PathError(("grid",), str(e)) from None
     fluid = FluidParams(**(spec.fluid or FluidSpec()).model_dump())
@@ -1334,7 +1589,8 @@ def _assemble(spec) -> Case:
         m = re.match(r"numerics (\w+)", str(e))
         raise _PathError(("numerics",) + ((m.group(1),) if m else ()), str(e)) from None
     try:
-        boundary = (spec.boundary or BoundarySpec()).boundary()
+        default = BoundarySpec3() if g.dim == 3 else BoundarySpec()  # walls all round
+        boundary = (spec.boundary or default).boundary()
     except ValueError as e:
         raise _PathError(("boundary",), str(e)) from None
     solids = []
@@ -1379,60 +1635,93 @@ def _assemble(spec) -> Case:
     return Case(**kw, contact=contact_obj)
 
 
-def _span(X, Y, mask) -> str:
-    return (
-        f"x in [{X[mask].min():.3g}, {X[mask].max():.3g}], "
-        f"y in [{Y[mask].min():.3g}, {Y[mask].max():.3g}]"
+def _check_3d(case: Case) -> None:
+    """The settings of a 3D case that the 3D step does not have yet, each named by its key
+    (the wording is :func:`refmap.model.check_3d_support`'s; anchors are refused by the
+    schema already)."""
+    try:
+        check_3d_support(case.numerics, ())
+    except ValueError as e:
+        m = re.search(r"numerics\.(\w+)", str(e))
+        key = ("numerics", m.group(1)) if m else ("numerics",)
+        got = f" (got {_fmt_value(getattr(case.numerics, key[1]))})" if m else ""
+        raise _PathError(key, f"{e}{got}") from None
+    if case.contact is not None:
+        try:
+            check_3d_support(case.numerics, (), (case.contact,))
+        except ValueError as e:
+            raise _PathError(("contact",), f"{e}; leave [contact] out") from None
+
+
+_AXES = "xyz"
+
+
+def _span(coords, mask) -> str:
+    return ", ".join(
+        f"{_AXES[a]} in [{X[mask].min():.3g}, {X[mask].max():.3g}]" for a, X in enumerate(coords)
     )
 
 
 def _current_bbox(solid: Solid):
-    """The solid's box in current coordinates (None if its shape has no bbox)."""
+    """The solid's box in current coordinates, ``(x0, x1, y0, y1[, z0, z1])`` (None if its
+    shape has no bbox)."""
+    import itertools
+
     try:
-        x0, x1, y0, y1 = solid.shape.bbox()
+        bb = tuple(solid.shape.bbox())
     except Exception:  # noqa: BLE001 - user shapes may not implement bbox
         return None
     A = np.asarray(solid.strain)
     c = np.asarray(solid.strain_center)
+    nd = len(c)
+    if len(bb) != 2 * nd:
+        return None
     with np.errstate(all="ignore"):
         try:
             Ainv = np.linalg.inv(A)
         except np.linalg.LinAlgError:
             return None
-        pts = np.array([[x, y] for x in (x0, x1) for y in (y0, y1)]) - c
+        pts = np.array(list(itertools.product(*(bb[2 * a: 2 * a + 2] for a in range(nd))))) - c
         cur = pts @ Ainv.T + c  # x = A^-1 (xi - c) + c
     if not np.all(np.isfinite(cur)):
         return None
-    return cur[:, 0].min(), cur[:, 0].max(), cur[:, 1].min(), cur[:, 1].max()
+    return tuple(v for a in range(nd) for v in (cur[:, a].min(), cur[:, a].max()))
 
 
 def _check_geometry(case: Case) -> None:
     """Shapes inside the domain and clear of its non-periodic edges, no overlap at t = 0,
     anchors holding grid nodes; errors name the key path."""
     g = case.grid
-    X, Y = g.mesh("node")
+    coords = g.mesh("node")
+    nd = len(coords)
+    X, Y = coords[0], coords[1]
+    lows = (g.ax, g.ay, getattr(g, "az", None))[:nd]
+    highs = (g.bx, g.by, getattr(g, "bz", None))[:nd]
     periodic = case.boundary.periodic
     edge = np.zeros(X.shape, dtype=bool)
-    if not periodic[0]:
-        edge[:2, :] = edge[-2:, :] = True
-    if not periodic[1]:
-        edge[:, :2] = edge[:, -2:] = True
-    dom = f"[{g.ax:g}, {g.bx:g}] x [{g.ay:g}, {g.by:g}]"
+    for a in range(nd):
+        if not periodic[a]:
+            for rows in (slice(None, 2), slice(-2, None)):
+                index = [slice(None)] * nd
+                index[a] = rows
+                edge[tuple(index)] = True
+    dom = " x ".join(f"[{lo:g}, {hi:g}]" for lo, hi in zip(lows, highs, strict=True))
     insides = []
     for k, s in enumerate(case.solids):
         where = ("solids", k, "shape")
         with np.errstate(all="ignore"):
-            xi_x, xi_y = s.initial_map(X, Y)
-            phi = np.asarray(s.shape(xi_x, xi_y))
+            xi = s.initial_map(*coords)
+            phi = np.asarray(s.shape(*xi))
         inside = phi < 0
         if not inside.any():
             bb = _current_bbox(s)
-            if bb is None or bb[1] < g.ax or bb[0] > g.bx or bb[3] < g.ay or bb[2] > g.by:
+            if bb is None or any(bb[2 * a + 1] < lows[a] or bb[2 * a] > highs[a]
+                                 for a in range(nd)):
                 spans = (
                     ""
                     if bb is None
-                    else f"; the shape spans x in [{bb[0]:.3g}, {bb[1]:.3g}], "
-                    f"y in [{bb[2]:.3g}, {bb[3]:.3g}]"
+                    else "; the shape spans " + ", ".join(
+                        f"{_AXES[a]} in [{bb[2 * a]:.3g}, {bb[2 * a + 1]:.3g}]" for a in range(nd))
                 )
                 raise _PathError(where, f"outside the domain {dom}{spans}")
             raise _PathError(
@@ -1442,7 +1731,7 @@ def _check_geometry(case: Case) -> None:
             raise _PathError(
                 where,
                 f"outside the domain {dom} or within two cells of a non-periodic "
-                f"edge: the solid spans {_span(X, Y, inside)}",
+                f"edge: the solid spans {_span(coords, inside)}",
             )
         if inside.sum() < 4:
             raise _PathError(
@@ -1472,7 +1761,7 @@ def _check_geometry(case: Case) -> None:
                 raise _PathError(
                     ("solids", k, "anchor", "region"),
                     f"holds no node of the solid: its {int(held.sum())} grid nodes lie "
-                    f"outside the solid, which spans {_span(X, Y, inside)}",
+                    f"outside the solid, which spans {_span(coords, inside)}",
                 )
         insides.append(inside)
     if case.initial_velocity is not None:  # shape against the grid, finite values
@@ -1487,7 +1776,7 @@ def _check_geometry(case: Case) -> None:
                 raise _PathError(
                     (),
                     f"solids[{j}] and solids[{k}] overlap at t = 0 "
-                    f"({int(both.sum())} grid nodes inside both: {_span(X, Y, both)})",
+                    f"({int(both.sum())} grid nodes inside both: {_span(coords, both)})",
                 )
 
 
@@ -1659,16 +1948,17 @@ def _shape_doc(shape: Shape, base_dir) -> dict:
     return out
 
 
-def _edge_doc(edge):
+def _edge_doc(edge, nd: int = 2):
     if edge == "periodic":
         return "periodic"
+    zero = {} if nd == 2 else {"velocity": (0.0,) * nd}  # a face's resting velocity
     if (
         len(edge) == 1
         and edge[0].kind in ("wall", "slip", "outflow")
-        and edge[0] == Segment(edge[0].kind)
+        and edge[0] == Segment(edge[0].kind, **zero)
     ):
         return edge[0].kind
-    default = Segment()
+    default = Segment(**zero)
     out = []
     for s in edge:
         d = Inline(kind=s.kind)
@@ -1682,14 +1972,31 @@ def _edge_doc(edge):
     return out
 
 
-def _case_doc(case: Case, base_dir=None) -> dict:
-    g = case.grid
-    grid = {}
+def _grid_doc(g) -> dict:
+    grid: dict[str, Any] = {}
+    if getattr(g, "ndim", 2) == 3:
+        grid["dim"] = 3
+        cubic = all(
+            m == _derived_ny(g.nx, g.ax, g.bx, lo, hi) and 8 <= g.nx * (hi - lo) / (g.bx - g.ax)
+            for m, lo, hi in ((g.ny, g.ay, g.by), (g.nz, g.az, g.bz))
+        )
+        if cubic:
+            grid["n"] = g.nx
+        else:
+            grid["nx"], grid["ny"], grid["nz"] = g.nx, g.ny, g.nz
+        grid.update(ax=g.ax, bx=g.bx, ay=g.ay, by=g.by, az=g.az, bz=g.bz)
+        return grid
     if g.ny == _derived_ny(g.nx, g.ax, g.bx, g.ay, g.by):
         grid["n"] = g.nx
     else:
         grid["nx"], grid["ny"] = g.nx, g.ny
     grid.update(ax=g.ax, bx=g.bx, ay=g.ay, by=g.by)
+    return grid
+
+
+def _case_doc(case: Case, base_dir=None) -> dict:
+    nd = getattr(case.grid, "ndim", 2)
+    grid = _grid_doc(case.grid)
     doc: dict[str, Any] = {"name": case.name}
     if getattr(case, "description", ""):
         doc["description"] = case.description
@@ -1699,12 +2006,13 @@ def _case_doc(case: Case, base_dir=None) -> dict:
     doc["fluid"] = case.fluid.to_dict()
     doc["numerics"] = {k: v for k, v in case.numerics.to_dict().items() if v is not None}
     doc["output"] = {"picture_field": case.picture_field}
-    doc["boundary"] = {name: _edge_doc(getattr(case.boundary, name)) for name in EDGES}
+    faces = EDGES if nd == 2 else FACES
+    doc["boundary"] = {name: _edge_doc(getattr(case.boundary, name), nd) for name in faces}
     if case.contact is not None:
         doc["contact"] = case.contact.to_dict()
     iv = as_initial_velocity(case.initial_velocity)
     if isinstance(iv, VelocityExpression):
-        doc["initial_velocity"] = {"u": iv.u, "v": iv.v}
+        doc["initial_velocity"] = dict(iv.to_dict())  # u, v (and w in 3D)
     elif isinstance(iv, VelocityFile):
         doc["initial_velocity"] = {"file": _relative_file(iv.file, base_dir)}
         if iv.dataset is not None:
@@ -1720,6 +2028,8 @@ def _case_doc(case: Case, base_dir=None) -> dict:
     for k, s in enumerate(case.solids):
         try:
             law = Inline(s.law.to_dict())
+            if law.get("dim") == nd:  # a case file's laws take the grid's dimension
+                del law["dim"]
         except (ValueError, TypeError) as e:
             raise CaseFileError(
                 f"solids[{k}].law: cannot be written to a case file: {e}", f"solids[{k}].law"
@@ -1771,6 +2081,21 @@ _COMMENTS = {
 }
 
 
+_COMMENTS_3D = {
+    **_COMMENTS,
+    ("grid",): "dim = 3: a 3D case; n cells along x (ny, nz follow for cubic cells), or nx, ny "
+    "and nz;\nthe domain [ax, bx] x [ay, by] x [az, bz]",
+    ("boundary",): 'each face: "wall", "slip", "outflow", "periodic", or one segment\n'
+    "{kind, velocity = [u, v, w], profile, ramp, omega} covering the whole face;\n"
+    "back and front are the z-low and z-high faces",
+    ("initial_velocity",): "velocity at t = 0 of fluid and solids: formulas u, v, w in x, y "
+    "and z, or a\nfile (3, nx, ny, nz); each solid's velocity is added inside it",
+    ("solids",): "a solid: shape in reference coordinates (a 3D type), material law (3D by "
+    "itself),\ninitial map xi = strain (x - strain_center) + strain_center (3x3), initial "
+    "velocity",
+}
+
+
 def case_to_toml(
     case: Case, base_dir: str | os.PathLike | None = None, header: str | None = None
 ) -> str:
@@ -1782,7 +2107,7 @@ def case_to_toml(
     Python energy function, an unregistered shape).
     """
     doc = _case_doc(case, base_dir)
-    text = to_toml(doc, _COMMENTS)
+    text = to_toml(doc, _COMMENTS_3D if getattr(case.grid, "ndim", 2) == 3 else _COMMENTS)
     if header:
         text = (
             "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines()) + "\n" + text
