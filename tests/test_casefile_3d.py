@@ -294,8 +294,6 @@ def test_3d_settings_in_a_2d_file_name_the_key_and_value(path, value, key, words
 
 
 NOT_IN_3D = [
-    (("solids", 0, "anchor"), {"type": "pivot", "center": [0.0, 0.0]}, "solids[0].anchor",
-     ["not available in 3D yet: anchors", "type = \"pivot\""]),
     (("contact",), {"strength": 2.0}, "contact", ["not available in 3D yet", "Contact"]),
     (("numerics",), {"fluid_model": "incompressible"}, "numerics.fluid_model",
      ["not available in 3D yet", "(got 'incompressible')"]),
@@ -316,6 +314,28 @@ def test_2d_only_settings_in_3d_are_named(path, value, key, words):
     assert e.value.key == key and msg.startswith(key + ": "), msg
     for w in words:
         assert w in msg, (w, msg)
+
+
+def test_3d_anchors_load_and_a_2d_pivot_centre_is_named():
+    """A 3D pivot is an axle (refmap.anchors.PivotAnchor with a 3D centre); a region anchor
+    takes a 3D shape; a 2-number centre names its key."""
+    from refmap.anchors import PivotAnchor, RegionAnchor
+
+    d = copy.deepcopy(BASE)
+    _set(d, ("solids", 0, "anchor"), {"type": "pivot", "center": [-0.2, 0.0, 0.0],
+                                      "half_length": 0.2, "fit_radius": 0.2, "hold_radius": 0.1})
+    a = _load(d).solids[0].anchor
+    assert isinstance(a, PivotAnchor) and a.center == (-0.2, 0.0, 0.0) and a.axis == (0.0, 0.0, 1.0)
+    d = copy.deepcopy(BASE)
+    _set(d, ("solids", 0, "anchor"), {"type": "region",
+                                      "region": {"type": "Sphere", "center": [-0.2, 0.0, 0.0], "radius": 0.25}})
+    assert isinstance(_load(d).solids[0].anchor, RegionAnchor)
+    d = copy.deepcopy(BASE)
+    _set(d, ("solids", 0, "anchor"), {"type": "pivot", "center": [0.0, 0.0]})
+    with pytest.raises(CaseFileError) as e:
+        _load(d)
+    assert e.value.key.startswith("solids[0].anchor"), str(e.value)
+    assert "center" in str(e.value)
 
 
 def test_geometry_errors_in_3d_name_the_solid_and_the_z_extent():

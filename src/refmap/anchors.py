@@ -104,12 +104,12 @@ class PivotAnchor:
     nodes get the rigid rotation ``omega axis x r``.  ``hold_map`` is 2D only.
     """
 
-    center: tuple = (0.0, 0.0)
+    center: tuple[float, float] = (0.0, 0.0)  # (x, y, z) in 3D
     fit_radius: float = 0.4
     hold_radius: float = 0.3
     hold_map: bool = False
-    axis: tuple | None = None
-    half_length: float | None = None
+    axis: tuple[float, float, float] | None = None  # 3D only
+    half_length: float | None = None  # 3D only
 
     supports_3d = True
 

@@ -22,8 +22,9 @@ velocities and ``strain_center`` have three numbers, ``strain`` is 3x3, ``[bound
 has the faces ``back`` (z-low) and ``front`` (z-high), shapes are the 3D types of
 ``refmap.geometry.SHAPES_3D`` (and CSG / transforms of them), laws get ``dim = 3`` without
 writing it, and ``[initial_velocity]`` takes ``u``, ``v``, ``w`` in x, y, z (a file holds
-``(3, nx, ny, nz)``).  Settings the 3D step does not have yet (anchors, contact, the
-incompressible fluid, implicit viscosity) are errors naming their key.
+``(3, nx, ny, nz)``); a 3D pivot anchor is an axle (``center`` x, y, z, ``axis``,
+``half_length``).  Settings the 3D step does not have yet (the incompressible fluid,
+implicit viscosity) are errors naming their key.
 
 Public API
 ----------
@@ -311,10 +312,12 @@ class _Table(BaseModel):
 
 
 def _spec_from_dataclass(
-    name: str, cls: type, constraints: dict[str, dict], only: list[str] | None = None
+    name: str, cls: type, constraints: dict[str, dict], only: list[str] | None = None,
+    types: dict[str, Any] | None = None,
 ) -> type[_Table]:
     """A table model with one key per field of the dataclass ``cls`` (optional with the
-    dataclass default where it has one); scalar and pair fields are typed, others Any."""
+    dataclass default where it has one); scalar and pair fields are typed, others Any;
+    ``types`` overrides the type of the fields it names."""
     scalar = {
         "float": lambda c: Annotated[float, Strict(), Field(allow_inf_nan=False, **c)],
         "int": lambda c: Annotated[int, Strict(), Field(**c)],
@@ -334,6 +337,8 @@ def _spec_from_dataclass(
         base = ann.removesuffix("|None")
         c = constraints.get(f.name, {})
         typ = scalar[base](c) if base in scalar else Any
+        if types and f.name in types:
+            typ = types[f.name]
         if optional:
             typ = typ | None
         if f.default is not dataclasses.MISSING:
@@ -937,22 +942,31 @@ def _is_shape_field(f: dataclasses.Field) -> bool:
     return f.name == "region" or "Shape" in ann
 
 
-def _anchor_spec(kind: str) -> type[_Table]:
-    """A table model for the non-shape fields of ``ANCHORS[kind]`` (cached)."""
-    if kind not in _ANCHOR_SPECS:
+def _anchor_spec(kind: str, dim: int = 2) -> type[_Table]:
+    """A table model for the non-shape fields of ``ANCHORS[kind]`` (cached per dimension):
+    in 3D a pivot's ``center`` and ``axis`` are three numbers; ``axis`` and
+    ``half_length`` are 3D keys."""
+    if (kind, dim) not in _ANCHOR_SPECS:
         cls = ANCHORS[kind]
-        plain = [f for f in dataclasses.fields(cls) if not _is_shape_field(f)]
-        _ANCHOR_SPECS[kind] = _spec_from_dataclass(
-            f"{kind.title()}AnchorSpec", cls, _ANCHOR_CONSTRAINTS, only=[f.name for f in plain]
+        plain = [f.name for f in dataclasses.fields(cls) if not _is_shape_field(f)]
+        types = None
+        if dim == 3:
+            types = {"center": Triple, "axis": Triple}
+        else:
+            plain = [n for n in plain if n not in ("axis", "half_length")]
+        _ANCHOR_SPECS[(kind, dim)] = _spec_from_dataclass(
+            f"{kind.title()}AnchorSpec{dim}D", cls, _ANCHOR_CONSTRAINTS, only=plain, types=types
         )
-    return _ANCHOR_SPECS[kind]
+    return _ANCHOR_SPECS[(kind, dim)]
 
 
-_ANCHOR_SPECS: dict[str, type[_Table]] = {}
+_ANCHOR_SPECS: dict[tuple[str, int], type[_Table]] = {}
 
 
-def build_anchor(d: Any, base_dir=None):
-    """An anchor from ``{type = "region", region = SHAPE}`` or ``{type = "pivot", ...}``."""
+def build_anchor(d: Any, base_dir=None, dim: int = 2):
+    """An anchor from ``{type = "region", region = SHAPE}`` or ``{type = "pivot", ...}``
+    (``dim``: the grid's dimension; a 3D pivot is an axle, see
+    :class:`refmap.anchors.PivotAnchor`)."""
     if not isinstance(d, Mapping):
         raise _PathError((), f"must be a table with a 'type' key (got {_fmt_value(d)})")
     if "type" not in d:
@@ -968,6 +982,8 @@ def build_anchor(d: Any, base_dir=None):
         )
     cls = ANCHORS[kind]
     fields = {f.name: f for f in dataclasses.fields(cls)}
+    if dim == 2:
+        fields = {k: f for k, f in fields.items() if k not in ("axis", "half_length")}
     rest = {k: v for k, v in d.items() if k != "type"}
     _check_keys(rest, fields, f" for a {kind} anchor")
     kwargs: dict[str, Any] = {}
@@ -982,11 +998,11 @@ def build_anchor(d: Any, base_dir=None):
                     )
                 continue
             try:
-                kwargs[name] = build_shape(rest.pop(name), base_dir)
+                kwargs[name] = build_shape(rest.pop(name), base_dir, dim)
             except _PathError as e:
                 raise _PathError((name,) + e.path, e.msg) from None
     try:
-        spec = _anchor_spec(kind).model_validate(rest)
+        spec = _anchor_spec(kind, dim).model_validate(rest)
     except ValidationError as e:
         raise _from_validation_error(e) from None
     kwargs.update(spec.model_dump(exclude_unset=True))
@@ -1039,7 +1055,8 @@ class SolidSpec(_Table):
 
 
 class SolidSpec3(SolidSpec):
-    """A solid of a 3D case: 3x3 strain, three-number centre and velocity, no anchor yet."""
+    """A solid of a 3D case: 3x3 strain, three-number centre and velocity; anchors with 3D
+    regions, or a pivot axle."""
 
     DIM: ClassVar[int] = 3
     strain: tuple[Triple, Triple, Triple] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
@@ -1049,13 +1066,7 @@ class SolidSpec3(SolidSpec):
     @field_validator("anchor", mode="before")
     @classmethod
     def _anchor(cls, v, info: ValidationInfo):
-        if v is None:
-            return None
-        raise _PathError(
-            (),
-            "not available in 3D yet: anchors (region and pivot anchors are 2D only so "
-            f"far; leave the anchor out) (got {_fmt_value(v)})",
-        )
+        return None if v is None else build_anchor(v, _base_dir(info), 3)
 
 
 def build_initial_velocity(d: Any, base_dir: str | os.PathLike | None = None, dim: int = 2):
@@ -1637,8 +1648,7 @@ def _assemble(spec) -> Case:
 
 def _check_3d(case: Case) -> None:
     """The settings of a 3D case that the 3D step does not have yet, each named by its key
-    (the wording is :func:`refmap.model.check_3d_support`'s; anchors are refused by the
-    schema already)."""
+    (the wording is :func:`refmap.model.check_3d_support`'s)."""
     try:
         check_3d_support(case.numerics, ())
     except ValueError as e:
