@@ -297,8 +297,8 @@ NOT_IN_3D = [
     (("contact",), {"strength": 2.0}, "contact", ["not available in 3D yet", "Contact"]),
     (("numerics",), {"fluid_model": "incompressible"}, "numerics.fluid_model",
      ["not available in 3D yet", "(got 'incompressible')"]),
-    (("numerics",), {"viscosity": "implicit"}, "numerics.viscosity",
-     ["not available in 3D yet", "(got 'implicit')"]),
+    (("numerics",), {"viscosity": "implicit", "viscosity_preconditioner": "fast"},
+     "numerics.viscosity_preconditioner", ["not available in 3D yet", "(got 'fast')"]),
     (("numerics",), {"band_force": "solid"}, "numerics.band_force",
      ["not available in 3D yet", "(got 'solid')"]),
 ]

@@ -24,7 +24,7 @@ has the faces ``back`` (z-low) and ``front`` (z-high), shapes are the 3D types o
 writing it, and ``[initial_velocity]`` takes ``u``, ``v``, ``w`` in x, y, z (a file holds
 ``(3, nx, ny, nz)``); a 3D pivot anchor is an axle (``center`` x, y, z, ``axis``,
 ``half_length``).  Settings the 3D step does not have yet (the incompressible fluid,
-implicit viscosity) are errors naming their key.
+the 'fast' viscous preconditioner) are errors naming their key.
 
 Public API
 ----------

@@ -1113,8 +1113,9 @@ def check_3d_support(numerics: Numerics, solids, body_forces=()) -> None:
     todo = []
     if n.fluid_model != "compressible":
         todo.append(f"numerics.fluid_model {n.fluid_model!r} (the 3D projection is not written yet)")
-    if n.viscosity != "explicit":
-        todo.append(f"numerics.viscosity {n.viscosity!r} (the 3D implicit viscous solve is not written yet)")
+    if n.viscosity == "implicit" and n.viscosity_preconditioner != "jacobi":
+        todo.append(f"numerics.viscosity_preconditioner {n.viscosity_preconditioner!r} (the 'fast' "
+                    "separable solver is 2D; use 'jacobi')")
     if n.band_force != "local":
         todo.append(f"numerics.band_force {n.band_force!r}")
     for s in solids:

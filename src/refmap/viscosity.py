@@ -43,10 +43,12 @@ from refmap.operators import div_node, grad_corner, laplacian
 
 
 def viscous_force(model, v, t, fluid, wf_c):
-    """The fluid viscous force f(v) (2, nx, ny) with ghost values at time ``t``: the
+    """The fluid viscous force f(v) (d, nx, ny[, nz]) with ghost values at time ``t``: the
     divergence of ``w_f (eta sym(grad v) + zeta div(v) I)`` plus ``e lap(v)``, exactly the
     viscous part of the explicit step."""
     g = model.grid
+    if getattr(model, "ndim", 2) == 3:
+        return _viscous_force_3d(model, v, t, fluid, wf_c)
     vp = model.bc.pad_velocity(v, t)
     vp1 = vp[:, 1:-1, 1:-1]
     ux, uy = grad_corner(vp1[0], g.dx, g.dy)
@@ -56,6 +58,23 @@ def viscous_force(model, v, t, fluid, wf_c):
     sxy = wf_c * (0.5 * fluid.eta * (uy + vx))
     syy = wf_c * (fluid.eta * vy + bulk)
     return div_node(sxx, sxy, syy, g.dx, g.dy) + fluid.extra_viscosity * laplacian(vp, g.dx, g.dy, g=2)
+
+
+def _viscous_force_3d(model, v, t, fluid, wf_c):
+    """:func:`viscous_force` on a 3D grid (the 2D arithmetic with a third axis)."""
+    sp = model.spacing
+    vp = model.bc.pad_velocity(v, t)
+    vp1 = vp[:, 1:-1, 1:-1, 1:-1]
+    dv = [grad_corner(vp1[a], *sp) for a in range(3)]  # dv[a][b] = d v_a / d x_b
+    bulk = fluid.bulk_viscosity * (dv[0][0] + dv[1][1] + dv[2][2])
+    comps = []
+    for a in range(3):
+        for b in range(a, 3):
+            if a == b:
+                comps.append(wf_c * (fluid.eta * dv[a][a] + bulk))
+            else:
+                comps.append(wf_c * (0.5 * fluid.eta * (dv[a][b] + dv[b][a])))
+    return div_node(*comps, *sp) + fluid.extra_viscosity * laplacian(vp, *sp, g=2)
 
 
 def _edge_kind(edge, component: int, normal_axis: int) -> str:
@@ -96,7 +115,11 @@ class ImplicitViscosity:
         self.model = model
         self.rtol = float(rtol)
         self.maxiter = int(maxiter)
-        self.fast = tuple(
+        self.ndim = getattr(model, "ndim", 2)
+        if self.ndim == 3 and preconditioner == "fast":
+            raise ValueError("numerics viscosity_preconditioner 'fast' is 2D only (its separable "
+                             "solver is 2D); use 'jacobi' in 3D")
+        self.fast = () if self.ndim == 3 else tuple(
             SeparableSolver(g.nx, g.ny, g.dx, g.dy, axis_kinds(model.boundary, c)) for c in (0, 1)
         )
         # the corner-stress operator is symmetric on periodic axes; at edges the ghost
@@ -105,7 +128,7 @@ class ImplicitViscosity:
 
     def operator(self, rho, wf_c, fluid, t, dt):
         """The linear map ``x -> rho x - dt D x`` (D the linear part of f, no boundary data)."""
-        zero = jnp.zeros((2,) + rho.shape, dtype=rho.dtype)
+        zero = jnp.zeros((self.ndim,) + rho.shape, dtype=rho.dtype)
 
         def D(x):
             return jax.jvp(lambda v: viscous_force(self.model, v, t, fluid, wf_c), (zero,), (x,))[1]
@@ -124,6 +147,8 @@ class ImplicitViscosity:
         g = self.model.grid
         rho, wf_c, dt = sg(rho), sg(wf_c), sg(dt)
         eta, zeta, e = (sg(jnp.asarray(a)) for a in (fluid.eta, fluid.bulk_viscosity, fluid.extra_viscosity))
+        if self.preconditioner_kind == "jacobi" and self.ndim == 3:
+            return self._jacobi_3d(rho, wf_c, eta, zeta, e, dt)
         if self.preconditioner_kind == "jacobi":
             # node (i, j)'s stencil: d/dx through its top corners TL, TR; d/dy through TR, BR
             wx = wf_c[:-1, 1:] + wf_c[1:, 1:]
@@ -144,6 +169,28 @@ class ImplicitViscosity:
             return jnp.stack([u, w])
 
         return P
+
+    def _jacobi_3d(self, rho, wf_c, eta, zeta, e, dt):
+        """The operator's diagonal in 3D: the x_a-derivatives of a node's own value enter
+        through its top corner TR and TR - e_a, so the weight along axis a is
+        ``w_f[TR] + w_f[TR - e_a]``; component c has ``eta + zeta`` along its own axis and
+        ``eta / 2`` along the others (as the 2D ``wx``, ``wy``)."""
+        h = self.model.spacing
+        top = (slice(1, None),) * 3
+        w = []
+        for a in range(3):
+            lower = tuple(slice(None, -1) if b == a else slice(1, None) for b in range(3))
+            w.append(wf_c[top] + wf_c[lower])
+        lap = 2.0 * e * sum(1.0 / ha**2 for ha in h)
+        diag = []
+        for c in range(3):
+            acc = rho + dt * lap
+            for a in range(3):
+                coef = (eta + zeta) if a == c else 0.5 * eta
+                acc = acc + dt * coef * w[a] / h[a] ** 2
+            diag.append(acc)
+        inv = 1.0 / jnp.stack(diag)
+        return lambda r: r * inv
 
     def solve(self, v_star, rho, wf_c, fluid, t_new, dt, return_info=False):
         """``v^{n+1}`` from ``rho (v^{n+1} - v*) = dt f(v^{n+1})``, boundary data at t_new.
