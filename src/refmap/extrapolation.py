@@ -557,6 +557,7 @@ def extend(
     tile: tuple[int, int] | None = None,
     *,
     dz=None,
+    window: tuple[int, ...] | None = None,
 ):
     """:func:`extrapolate_linear` then :func:`smooth_extrapolated`, for several solids at once.
 
@@ -577,7 +578,15 @@ def extend(
     full-grid sweeps (same result, full cost).  A tuple of capacities is a ladder: the
     smallest one that holds every solid's band is used (the work is proportional to it),
     the full grid when none does.  The tiles are 2D only: in 3D ``capacity`` and ``tile``
-    are ignored and the sweeps run on the full grid.
+    are ignored.
+
+    ``window`` (3D): a static box size (one number of nodes per axis; the full length on a
+    periodic axis).  Each solid's sweeps then run on a box of that size placed round its
+    band (``phi <= band``) with :data:`WINDOW_MARGIN` nodes to spare on every side, cut
+    out with ``lax.dynamic_slice`` and written back: every node the sweeps change and every
+    node they read lies inside, so the result is the full grid's (the arithmetic per node
+    is the same).  When a band does not fit (a body grown or deformed beyond it, a body
+    across a periodic edge), the call falls back on the full grid.
     """
     _, periodic = _dims(dx, dy, dz, periodic, "extend")
     f = jnp.asarray(f)
@@ -613,6 +622,8 @@ def extend(
             return jax.vmap(per_solid)(f, phi)
         return jax.vmap(one)(f, phi)
 
+    if window is not None and dz is not None and f.shape[0] > 0:
+        return _extend_window(f, phi, band, tuple(int(w) for w in window), dense, periodic)
     if capacity is None or tile is None or f.shape[0] == 0:
         return dense(f, phi)
     ntx, nty = narrowband.n_tiles(phi.shape[-2:], tile)
@@ -638,6 +649,80 @@ def extend(
     # the first capacity that holds the largest band; past the last one, the full grid
     level = jnp.sum(jnp.asarray(ladder, dtype=jnp.int32) < most, dtype=jnp.int32)
     return lax.switch(level, [compact(c) for c in ladder] + [dense], f, phi)
+
+
+#: nodes kept between a band and the edge of its window (:func:`extend`'s ``window``): the
+#: band's nodes then read only nodes inside (the normal of phi, the neighbours of the sweeps)
+WINDOW_MARGIN = 2
+
+
+def band_window_extent(phi, band, margin: int = WINDOW_MARGIN) -> tuple[int, ...]:
+    """The largest extent (nodes per axis, over the solids) of the boxes round each band
+    (``phi (S, ...)`` with ``phi <= band``) plus ``margin`` on each side: host-side, for
+    choosing a static ``window``."""
+    import numpy as np
+
+    phi = np.asarray(phi)
+    nd = phi.ndim - 1
+    ext = [0] * nd
+    for k in range(phi.shape[0]):
+        m = phi[k] <= band
+        if not m.any():
+            continue
+        for a in range(nd):
+            line = m.any(axis=tuple(b for b in range(nd) if b != a))
+            idx = np.nonzero(line)[0]
+            ext[a] = max(ext[a], int(idx[-1] - idx[0] + 1 + 2 * margin))
+    return tuple(ext)
+
+
+def window_placement(phi, band, window, periodic):
+    """Where :func:`extend`'s ``window`` boxes go: ``(starts (S, d) int32, fits (S,) bool,
+    W)`` for level sets ``phi (S, ...)``: each box (size ``W``, the window with the whole
+    length of periodic axes) centred on its band's box, moved inside the grid; ``fits``
+    where the band with ``WINDOW_MARGIN`` nodes to spare lies inside (or reaches a grid
+    edge that the box shares)."""
+    shape = phi.shape[1:]
+    nd = len(shape)
+    W = tuple(n if p else min(w, n) for w, n, p in zip(window, shape, periodic, strict=True))
+
+    def placement(phi_k):
+        m = phi_k <= band
+        starts, fits = [], jnp.asarray(True)
+        for a in range(nd):
+            line = jnp.any(m, axis=tuple(b for b in range(nd) if b != a))
+            n = shape[a]
+            idx = jnp.arange(n)
+            lo = jnp.min(jnp.where(line, idx, n))
+            hi = jnp.max(jnp.where(line, idx, -1))
+            start = jnp.clip((lo + hi + 1) // 2 - W[a] // 2, 0, n - W[a])
+            ok_lo = (lo - WINDOW_MARGIN >= start) | (start == 0)
+            ok_hi = (hi + WINDOW_MARGIN <= start + W[a] - 1) | (start + W[a] == n)
+            fits = fits & ok_lo & ok_hi & (hi >= lo)
+            starts.append(start.astype(jnp.int32))
+        return jnp.stack(starts), fits
+
+    starts, fits = jax.vmap(placement)(phi)
+    return starts, fits, W
+
+
+def _extend_window(f, phi, band, window, dense, periodic):
+    """:func:`extend`'s ``window`` path: each solid's sweeps on a box round its band (the
+    whole length of a periodic axis, whose wrap the box must keep)."""
+    starts, fits, W = window_placement(phi, band, window, periodic)
+
+    def windowed(f, phi):
+        zero = jnp.zeros((), jnp.int32)
+
+        def cut(a, st, lead):
+            return lax.dynamic_slice(a, (zero,) * lead + tuple(st), a.shape[:lead] + W)
+
+        fw = jax.vmap(lambda a, st: cut(a, st, 1))(f, starts)
+        pw = jax.vmap(lambda a, st: cut(a, st, 0))(phi, starts)
+        out = dense(fw, pw)
+        return jax.vmap(lambda a, o, st: lax.dynamic_update_slice(a, o, (zero, *st)))(f, out, starts)
+
+    return lax.cond(jnp.all(fits), windowed, dense, f, phi)
 
 
 def _unknown(phi, band, periodic):

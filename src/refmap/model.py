@@ -59,6 +59,12 @@ BAND_TILE_FRACTION = 0.35
 # a first, tighter band capacity (this times the tiles at t = 0, plus 8) tried before
 # Numerics.band_capacity's: the band work is proportional to the capacity
 BAND_TIGHT = 1.25
+# 3D: sweep each band in a box (Model._initial_band_window) only when the box is at most
+# this fraction of the grid (the box's cut and write-back cost a little)
+BAND_WINDOW_FRACTION = 0.6
+# nodes added to the band box's extent at t = 0 for the window's size (the window follows
+# the body; the slack is for its deformation, beyond which the step sweeps the full grid)
+BAND_WINDOW_SLACK = 8
 
 LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max", "fixed")
 
@@ -294,8 +300,10 @@ class Model:
         tighter capacity, ``BAND_TIGHT`` times those tiles plus 8, is tried first."""
         n = self.numerics
         self._band_tight = None
-        if self.ndim == 3:  # the tile layout is 2D: 3D sweeps run on the full grid
+        self.band_window = None
+        if self.ndim == 3:  # the tile layout is 2D: 3D sweeps run on a box round each band
             self.band_tile = None
+            self.band_window = self._initial_band_window()
             return None
         self.band_tile = narrowband.tile_shape(self.grid.shape(), self.bc.periodic)
         if n.band_sweeps == "grid" or not self.solids or self.band_tile is None:
@@ -311,6 +319,28 @@ class Model:
             return None
         self._band_tight = min(int(math.ceil(BAND_TIGHT * counts.max())) + 8, capacity)
         return capacity
+
+    def _initial_band_window(self):
+        """3D: the static box (nodes per axis) in which each solid's band is swept
+        (:func:`refmap.extrapolation.extend`'s ``window``): the largest extent of a band box
+        at t = 0 plus ``BAND_WINDOW_SLACK`` nodes, the whole length of periodic axes; None
+        (the full grid) with ``band_sweeps = "grid"``, without solids, or when the box
+        would hold more than ``BAND_WINDOW_FRACTION`` of the grid."""
+        n = self.numerics
+        if n.band_sweeps == "grid" or not self.solids:
+            return None
+        shift = n.advected_band * self.h
+        with jax.ensure_compile_time_eval():
+            phi = np.stack([np.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)])
+        ext = extrapolation.band_window_extent(phi - shift, n.band * self.h - shift)
+        shape = self.grid.shape()
+        window = tuple(
+            m if p else min(m, e + BAND_WINDOW_SLACK)
+            for e, m, p in zip(ext, shape, self.bc.periodic, strict=True)
+        )
+        if math.prod(window) > BAND_WINDOW_FRACTION * math.prod(shape):
+            return None
+        return window
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -427,7 +457,7 @@ class Model:
             self.grid.dx,
             self.grid.dy,
             n.band * self.h - shift,
-            **({"dz": self.grid.dz} if self.ndim == 3 else {}),
+            **({"dz": self.grid.dz, "window": self.band_window} if self.ndim == 3 else {}),
             capacity=self.band_capacity
             if self.band_capacity is None or self._band_tight is None
             else (self._band_tight, self.band_capacity),
