@@ -65,7 +65,8 @@ Many solids.  At each corner only the nearest and the second-nearest solid (the 
 smallest phi_k, two ``argmin`` passes over the solid axis) form the pair: O(N) work per
 corner, not O(N^2).  A corner where three bodies meet sees its two nearest only.
 
-Walls.  Each non-periodic domain edge is an obstacle whose distance phi_w is exact.  A
+Walls.  Each non-periodic domain edge (face in 3D) is an obstacle whose distance phi_w
+is exact.  A
 solid near it is treated as a pair with its own mirror image across the wall: then
 ``phi_ab = -2 phi_w`` (the mid-surface is the wall), the image's level set is
 ``phi_k + 2 phi_w`` and n is the wall normal.  Summed over all solids (O(N) per corner).
@@ -86,7 +87,20 @@ Diagnostics.  :func:`contact_diagnostics` gives, per solid, the contact force in
 over the nodes, each node's force shared among the solids there in proportion to their
 fractions (pair and wall parts); per pair the minimum gap ``min(phi_i + phi_j)`` (for
 signed distances exactly the distance between the surfaces, minus the overlap depth if
-negative) and the overlap area; per solid the gap to the walls.
+negative) and the overlap area (volume in 3D); per solid the gap to the walls.
+
+Three dimensions.  The same :class:`Contact` serves 2D and 3D grids (it declares
+``supports_3d = True``, which :func:`refmap.model.check_3d_support` reads); nothing above
+depends on the dimension d.  The stresses are tuples of the d(d+1)/2 corner components in
+:data:`refmap.operators.SYM_COMPONENTS` order (``(xx, xy, yy)``; in 3D ``(xx, xy, xz, yy,
+yz, zz)``), ``grad(phi_ab)`` at a corner averages the 2^(d-1) differences along each axis
+of the 2^d nodes around it, and the walls are the non-periodic faces of
+:data:`refmap.boundary.AXIS_FACES` (left, right, bottom, top, back, front), each with its
+own slab of corners.  The force components, the diagnostics (``contact_fz``) and the frame
+arrays (axis ``xyz``) gain a z.  A z-invariant 3D state gives the 2D force exactly (to
+round-off, tested against a pair of discs), and every 2D result is bit for bit that of the
+2D code before the generalisation (tests/test_contact_3d.py against
+tests/frozen_2d_contact.py).
 """
 
 from __future__ import annotations

@@ -1121,9 +1121,9 @@ def check_3d_support(numerics: Numerics, solids, body_forces=()) -> None:
         if s.anchor is not None:
             todo.append(f"the anchor of solid {s.name!r} ({type(s.anchor).__name__})")
     for term in body_forces:
-        if getattr(term, "ndim", 2) != 3 and not getattr(term, "supports_3d", False):
-            todo.append(f"the body force {type(term).__name__} (2D only; a 3D term sets ndim = 3, "
-                        "or supports_3d = True if it serves both)")
+        if not (getattr(term, "supports_3d", False) or getattr(term, "ndim", 2) == 3):
+            todo.append(f"the body force {type(term).__name__} (2D only; a term written for 3D "
+                        "sets supports_3d = True)")
     if todo:
         raise ValueError("not available in 3D yet: " + "; ".join(todo))
 
