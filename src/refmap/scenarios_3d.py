@@ -87,7 +87,7 @@ def spheres_collide(n: int = 32) -> Case:
     # Measured at 32^3 (radius 4.8 cells) to t = 1: the squeezed film between the blur
     # zones brakes the pair from 3 cells apart (mean velocity 0.46 -> 0.10 by t = 0.15, 2.5
     # cells apart); it closes to 1.7 cells at t = 0.35 under a contact pressure of 0.18 (M
-    # = 23), then rests about 2 cells apart; no overlap, J in [0.83, 1.0].  At 16^3 (2.4
+    # = 23), then rests about 2 cells apart; no overlap, J_min >= 0.83.  At 16^3 (2.4
     # cells) the contact acts from the start: smallest gap 0.9 cells, pressure up to 1.1.
     # Denser spheres in less damping (rho 5, extra viscosity 0.02) broke down at 24^3 near
     # t = 0.4 with or without contact (level sets crossing, |v| ~ 20-40): not a default.
