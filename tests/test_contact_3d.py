@@ -220,8 +220,9 @@ def test_z_invariant_cylinders_feel_the_force_of_the_2d_discs():
     m3 = Model(Grid3D(n, n, 8, -1.0, 1.0, -1.0, 1.0, 0.0, 8 * h), s3,
                Boundary(back="periodic", front="periodic"), body_forces=(Contact(),))
     p2, p3 = m2.default_params(), m3.default_params()
-    a = contact_force(Contact(), m2, jax.jit(m2.initial_state)(p2), p2)
-    b = contact_force(Contact(), m3, jax.jit(m3.initial_state)(p3), p3)
+    st2, st3 = jax.jit(m2.initial_state)(p2), jax.jit(m3.initial_state)(p3)
+    a = contact_force(Contact(), m2, st2, p2)
+    b = contact_force(Contact(), m3, st3, p3)
     for key in ("pair_force", "wall_force"):
         f2, f3 = np.asarray(a[key]), np.asarray(b[key])
         scale = np.abs(f2).max()
@@ -242,8 +243,8 @@ def test_z_invariant_cylinders_feel_the_force_of_the_2d_discs():
         for i3 in (2, 4, 5):  # xz, yz, zz
             assert np.abs(np.asarray(s3_[i3])).max() <= 1e-12 * scale
     # the per-solid forces of the diagnostics: those of the 2D discs per unit length
-    d2 = contact_diagnostics(m2, jax.jit(m2.initial_state)(p2), p2, Contact())
-    d3 = contact_diagnostics(m3, jax.jit(m3.initial_state)(p3), p3, Contact())
+    d2 = contact_diagnostics(m2, st2, p2, Contact())
+    d3 = contact_diagnostics(m3, st3, p3, Contact())
     F2, F3 = np.asarray(d2["force"]), np.asarray(d3["force"]) / (8 * h)
     assert np.abs(F3[:, :2] - F2).max() <= 1e-10 * np.abs(F2).max()
     assert np.abs(np.asarray(d3["wall_gap"]) - np.asarray(d2["wall_gap"])).max() <= 1e-12
