@@ -65,7 +65,8 @@ Many solids.  At each corner only the nearest and the second-nearest solid (the 
 smallest phi_k, two ``argmin`` passes over the solid axis) form the pair: O(N) work per
 corner, not O(N^2).  A corner where three bodies meet sees its two nearest only.
 
-Walls.  Each non-periodic domain edge is an obstacle whose distance phi_w is exact.  A
+Walls.  Each non-periodic domain edge (face in 3D) is an obstacle whose distance phi_w
+is exact.  A
 solid near it is treated as a pair with its own mirror image across the wall: then
 ``phi_ab = -2 phi_w`` (the mid-surface is the wall), the image's level set is
 ``phi_k + 2 phi_w`` and n is the wall normal.  Summed over all solids (O(N) per corner).
@@ -86,7 +87,20 @@ Diagnostics.  :func:`contact_diagnostics` gives, per solid, the contact force in
 over the nodes, each node's force shared among the solids there in proportion to their
 fractions (pair and wall parts); per pair the minimum gap ``min(phi_i + phi_j)`` (for
 signed distances exactly the distance between the surfaces, minus the overlap depth if
-negative) and the overlap area; per solid the gap to the walls.
+negative) and the overlap area (volume in 3D); per solid the gap to the walls.
+
+Three dimensions.  The same :class:`Contact` serves 2D and 3D grids (it declares
+``supports_3d = True``, which :func:`refmap.model.check_3d_support` reads); nothing above
+depends on the dimension d.  The stresses are tuples of the d(d+1)/2 corner components in
+:data:`refmap.operators.SYM_COMPONENTS` order (``(xx, xy, yy)``; in 3D ``(xx, xy, xz, yy,
+yz, zz)``), ``grad(phi_ab)`` at a corner averages the 2^(d-1) differences along each axis
+of the 2^d nodes around it, and the walls are the non-periodic faces of
+:data:`refmap.boundary.AXIS_FACES` (left, right, bottom, top, back, front), each with its
+own slab of corners.  The force components, the diagnostics (``contact_fz``) and the frame
+arrays (axis ``xyz``) gain a z.  A z-invariant 3D state gives the 2D force exactly (to
+round-off, tested against a pair of discs), and every 2D result is bit for bit that of the
+2D code before the generalisation (tests/test_contact_3d.py against
+tests/frozen_2d_contact.py).
 """
 
 from __future__ import annotations
@@ -94,13 +108,14 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from refmap import blend
-from refmap.operators import div_node
+from refmap.operators import SYM_COMPONENTS, div_node
 
 __all__ = [
     "PAIR_COLUMNS_MAX_SOLIDS",
@@ -139,6 +154,9 @@ class Contact:
         Also keep solids off the non-periodic domain edges (default True).
     """
 
+    #: the term works on 2D and 3D grids alike (read by :func:`refmap.model.check_3d_support`)
+    supports_3d: ClassVar[bool] = True
+
     width: float = 3.0
     reach: float = 1.0
     cutoff: float = 0.01
@@ -170,13 +188,13 @@ class Contact:
         return self
 
     def __call__(self, ctx):
-        """Body-force term of :class:`refmap.model.Model`: force density (2, nx, ny)."""
+        """Body-force term of :class:`refmap.model.Model`: force density (d, nx, ny[, nz])."""
         return _total_force(self, ctx["model"], ctx["state"], ctx["params"], ctx["derived"])
 
     def diagnostics(self, model, state, params, derived=None):
         """Flat scalar contact diagnostics, shaped like ``Model.diagnostics`` (which merges
         them into its own): scalars; ``solids``, a list of per-solid dicts (contact force
-        ``contact_fx``, ``contact_fy`` and ``wall_gap``); and, for at most
+        ``contact_fx``, ``contact_fy`` (and ``contact_fz`` in 3D) and ``wall_gap``); and, for at most
         :data:`PAIR_COLUMNS_MAX_SOLIDS` solids, ``pairs``: ``{"i_j": {min_gap,
         overlap_area}}`` for every pair i < j (min_gap +inf for pairs farther apart than the
         band, i.e. not in contact).  The diagnostics table gets one column per entry; with
@@ -201,19 +219,19 @@ class Contact:
                 }
         if N >= 1:
             out["contact_min_wall_gap"] = jnp.min(d["wall_gap"])
+            axes = "xyz"[: model.ndim]
             out["solids"] = [
-                dict(
-                    contact_fx=d["force"][k, 0],
-                    contact_fy=d["force"][k, 1],
-                    wall_gap=d["wall_gap"][k],
-                )
+                {
+                    **{f"contact_f{a}": d["force"][k, c] for c, a in enumerate(axes)},
+                    "wall_gap": d["wall_gap"][k],
+                }
                 for k in range(N)
             ]
         return out
 
     def frame_arrays(self, model, state, params, derived=None):
         """The contact numbers of one state as arrays for the output frames:
-        ``contact_force`` (N, 2), ``contact_wall_gap`` (N,), ``contact_min_gap`` and
+        ``contact_force`` (N, d), ``contact_wall_gap`` (N,), ``contact_min_gap`` and
         ``contact_overlap_area`` (N, N; NaN on the diagonal, min_gap +inf for pairs not in
         contact)."""
         if model.n_solids == 0:
@@ -227,11 +245,12 @@ class Contact:
         }
 
     def frame_array_dims(self, model):
-        """Axis names of :meth:`frame_arrays`."""
+        """Axis names of :meth:`frame_arrays` (the force's components: ``xy``, in 3D ``xyz``,
+        as :meth:`refmap.model.Model.frame_array_dims`)."""
         if model.n_solids == 0:
             return {}
         return {
-            "contact_force": ("solid", "xy"),
+            "contact_force": ("solid", "xyz"[: model.ndim]),
             "contact_wall_gap": ("solid",),
             "contact_min_gap": ("solid", "other_solid"),
             "contact_overlap_area": ("solid", "other_solid"),
@@ -296,27 +315,43 @@ def _two_nearest(phi):
     return a, b
 
 
-def _corner_gradient_of(phip, idx, dx, dy):
+def _corner_gradient_of(phip, idx, *spacing):
     """Gradient at the corners of solid ``idx`` (per corner) from the node level sets padded
-    with one ghost layer: gathers the four nodes around each corner, O(1) per corner."""
-    bl = _take(phip[:, :-1, :-1], idx)
-    br = _take(phip[:, 1:, :-1], idx)
-    tl = _take(phip[:, :-1, 1:], idx)
-    tr = _take(phip[:, 1:, 1:], idx)
-    return 0.5 * ((br - bl) + (tr - tl)) / dx, 0.5 * ((tl - bl) + (tr - br)) / dy
+    with one ghost layer: gathers the 2^d nodes around each corner, O(1) per corner, and
+    averages the 2^(d-1) differences along each axis.  In 2D, with the nodes BL, BR, TL, TR,
+    ``(0.5 ((BR - BL) + (TR - TL)) / dx, 0.5 ((TL - BL) + (TR - BR)) / dy)``."""
+    d = len(spacing)
+    nodes = {}
+    for n in range(2**d):  # the first axis varying fastest: BL, BR, TL, TR in 2D
+        off = tuple((n >> a) & 1 for a in range(d))
+        view = tuple(slice(None, -1) if o == 0 else slice(1, None) for o in off)
+        nodes[off] = _take(phip[(slice(None), *view)], idx)
+    out = []
+    for a in range(d):
+        acc = None
+        for off, lo in nodes.items():  # every edge along axis a, by its low end
+            if off[a] == 1:
+                continue
+            hi = nodes[tuple(1 if b == a else o for b, o in enumerate(off))]
+            acc = hi - lo if acc is None else acc + (hi - lo)
+        out.append(0.5 ** (d - 1) * acc / spacing[a])
+    return tuple(out)
 
 
 def wall_distances(model, loc="corner"):
-    """``[(phi_w, inward normal)]`` for every non-periodic domain edge, at ``loc`` points
-    (numpy arrays of the grid's ``loc`` shape)."""
+    """``[(phi_w, inward normal)]`` for every non-periodic domain edge (face in 3D), at
+    ``loc`` points (numpy arrays of the grid's ``loc`` shape); the normal is a d-tuple.
+    Ordered by axis, low face first (left, right, bottom, top, back, front)."""
     g = model.grid
-    X, Y = g.mesh(loc)
-    px, py = model.bc.periodic
+    d = g.ndim
+    X = g.mesh(loc)
     out = []
-    if not px:
-        out += [(X - g.ax, (1.0, 0.0)), (g.bx - X, (-1.0, 0.0))]
-    if not py:
-        out += [(Y - g.ay, (0.0, 1.0)), (g.by - Y, (0.0, -1.0))]
+    for axis, periodic in enumerate(model.bc.periodic):
+        if periodic:
+            continue
+        lo, hi = (getattr(g, "a" + "xyz"[axis]), getattr(g, "b" + "xyz"[axis]))
+        e = tuple(1.0 if b == axis else 0.0 for b in range(d))
+        out += [(X[axis] - lo, e), (hi - X[axis], tuple(-c if c else 0.0 for c in e))]
     return out
 
 
@@ -325,16 +360,23 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     """Contact stress at the corners.
 
     Returns a dict: ``Pi`` and ``Pi_wall`` (pair and wall contact pressures, corner
-    arrays), ``pair`` and ``wall`` (their stresses as ``(sxx, sxy, syy)`` corner arrays),
-    ``a`` and ``b`` (nearest and second-nearest solid at each corner; None for N < 2).
+    arrays), ``pair`` and ``wall`` (their stresses as tuples of the d(d+1)/2 corner arrays
+    in ``SYM_COMPONENTS`` order: ``(sxx, sxy, syy)`` in 2D, ``(sxx, sxy, sxz, syy, syz,
+    szz)`` in 3D), ``a`` and ``b`` (nearest and second-nearest solid at each corner; None
+    for N < 2).
     """
     d = derived if derived is not None else model.derived(state, params)
     g = model.grid
+    nd = g.ndim
     h = model.h
     N = model.n_solids
     cshape = g.shape("corner")
+    # the (a, b) index pairs of the symmetric components, in SYM_COMPONENTS order
+    comps = [(a, b) for a in range(nd) for b in range(a, nd)]
+    assert len(comps) == len(SYM_COMPONENTS[nd])
     z = jnp.zeros(cshape, dtype=state.v.dtype)
-    out = dict(Pi=z, Pi_wall=z, pair=(z, z, z), wall=(z, z, z), a=None, b=None)
+    zeros = (z,) * len(comps)
+    out = dict(Pi=z, Pi_wall=z, pair=zeros, wall=zeros, a=None, b=None)
     if N == 0:
         return out
     K = _stiffness(contact, params)
@@ -343,64 +385,69 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     if N >= 2:
         a, b = _two_nearest(phic)
         pa, pb = _take(phic, a), _take(phic, b)
-        phip = model.bc.pad_linear(state.phi)[..., 1:-1, 1:-1]
-        gxa, gya = _corner_gradient_of(phip, a, g.dx, g.dy)
-        gxb, gyb = _corner_gradient_of(phip, b, g.dx, g.dy)
-        nx_, ny_ = gxa - gxb, gya - gyb
-        nn = nx_ * nx_ + ny_ * ny_
+        phip = model.bc.pad_linear(state.phi)[(Ellipsis, *(slice(1, -1),) * nd)]
+        ga = _corner_gradient_of(phip, a, *g.spacing)
+        gb = _corner_gradient_of(phip, b, *g.spacing)
+        n_ = [u - w for u, w in zip(ga, gb, strict=True)]  # grad(phi_ab), not normalised
+        nn = n_[0] * n_[0]
+        for c in range(1, nd):
+            nn = nn + n_[c] * n_[c]
         inv = jnp.where(nn > 1e-12, 1.0 / jnp.where(nn > 1e-12, nn, 1.0), 0.0)
         Pi = (
             K * _kernel(pa - pb, contact, h) * _presence(pa, contact, h, kern) * _presence(pb, contact, h, kern)
         )
-        # no pair pressure on the corners of non-periodic edges: their push on the node
-        # outside the domain would be lost, and with it the pair's momentum balance
+        # no pair pressure on the corners of non-periodic edges (faces): their push on the
+        # node outside the domain would be lost, and with it the pair's momentum balance
         edge = np.zeros(cshape, dtype=bool)
-        px, py = model.bc.periodic
-        if not px:
-            edge[0, :] = edge[-1, :] = True
-        if not py:
-            edge[:, 0] = edge[:, -1] = True
+        for axis, periodic in enumerate(model.bc.periodic):
+            if not periodic:
+                for i in (0, -1):
+                    sl = [slice(None)] * nd
+                    sl[axis] = i
+                    edge[tuple(sl)] = True
         Pi = jnp.where(jnp.asarray(edge), 0.0, Pi)
         q = Pi * inv  # n (x) n = grad(phi_ab) (x) grad(phi_ab) / |grad(phi_ab)|^2
-        out.update(Pi=Pi, a=a, b=b, pair=(-q * nx_ * nx_, -q * nx_ * ny_, -q * ny_ * ny_))
+        out.update(Pi=Pi, a=a, b=b, pair=tuple(-q * n_[i] * n_[j] for i, j in comps))
     if contact.walls:
         walls = wall_distances(model, "corner")
         if walls:
             # the wall pressure is nonzero only within 1.07 width cells of the wall: work on
-            # strips of corners along the edges, not on the whole grid
+            # strips (slabs) of corners along the edges (faces), not on the whole grid
             if contact.cutoff > 0:
                 reach_w = 0.5 * contact.width * h * math.sqrt(math.log(1.0 / contact.cutoff))
             else:
                 reach_w = math.inf
-            sxx, sxy, syy, Pw_total = z, z, z, z
-            for phi_w, (wx, wy) in walls:
-                axis = 0 if wx != 0.0 else 1
-                spacing = g.dx if axis == 0 else g.dy
+            sw, Pw_total = list(zeros), z
+            for phi_w, w in walls:
+                axis = next(c for c in range(nd) if w[c] != 0.0)
+                spacing = g.spacing[axis]
                 m = min(cshape[axis], int(math.floor(reach_w / spacing)) + 2)
-                low = (wx if axis == 0 else wy) > 0
-                sl = [slice(None), slice(None)]
+                low = w[axis] > 0
+                sl = [slice(None)] * nd
                 sl[axis] = slice(0, m) if low else slice(cshape[axis] - m, cshape[axis])
                 sl = tuple(sl)
                 pw = jnp.asarray(phi_w[sl])
                 ph = phic[(slice(None),) + sl]
                 pres = _presence(ph, contact, h, kern) * _presence(ph + 2.0 * pw, contact, h, kern)
                 Pw = K * _kernel(-2.0 * pw, contact, h) * jnp.sum(pres, axis=0)
-                sxx = sxx.at[sl].add(-Pw * wx * wx)
-                sxy = sxy.at[sl].add(-Pw * wx * wy)
-                syy = syy.at[sl].add(-Pw * wy * wy)
+                # -Pw w (x) w; the zero off-axis products are added too (as the 2D code
+                # always did: bitwise the same results)
+                for k, (i, j) in enumerate(comps):
+                    sw[k] = sw[k].at[sl].add(-Pw * w[i] * w[j])
                 Pw_total = Pw_total.at[sl].add(Pw)
-            out.update(Pi_wall=Pw_total, wall=(sxx, sxy, syy))
+            out.update(Pi_wall=Pw_total, wall=tuple(sw))
     return out
 
 
 def contact_force(contact: Contact, model, state, params, derived=None):
-    """Contact force density at the nodes: dict with ``force`` (2, nx, ny), its parts
+    """Contact force density at the nodes: dict with ``force`` (d, nx, ny[, nz]), its parts
     ``pair_force`` and ``wall_force``, and everything :func:`contact_stress` returns."""
     cs = contact_stress(contact, model, state, params, derived)
-    g = model.grid
+    sp = model.grid.spacing
+    nc = len(cs["pair"])
     st = _materialised(jnp.stack([*cs["pair"], *cs["wall"]]))
-    cs["pair_force"] = div_node(st[0], st[1], st[2], g.dx, g.dy)
-    cs["wall_force"] = div_node(st[3], st[4], st[5], g.dx, g.dy)
+    cs["pair_force"] = div_node(*st[:nc], *sp)
+    cs["wall_force"] = div_node(*st[nc:], *sp)
     cs["force"] = cs["pair_force"] + cs["wall_force"]
     return cs
 
@@ -413,10 +460,11 @@ def _materialised(stress):
 
 
 def _total_force(contact: Contact, model, state, params, derived):
-    """Contact force density (2, nx, ny): ``div`` of the summed pair and wall stresses."""
+    """Contact force density (d, nx, ny[, nz]): ``div`` of the summed pair and wall
+    stresses."""
     cs = contact_stress(contact, model, state, params, derived)
     st = _materialised(jnp.stack([p + w for p, w in zip(cs["pair"], cs["wall"], strict=True)]))
-    return div_node(st[0], st[1], st[2], model.grid.dx, model.grid.dy)
+    return div_node(*st, *model.grid.spacing)
 
 
 # ----------------------------------------------------------------------------- diagnostics
@@ -427,27 +475,29 @@ def contact_diagnostics(
 
     Returns a dict of arrays (N solids):
 
-    * ``force`` (N, 2): the contact force on each solid: the force density integrated over
-      the nodes, each node's force shared among the solids in proportion to their solid
-      fractions ``ws_n`` there; ``pair_force`` and
-      ``wall_force`` (N, 2) its two parts.  For an isolated pair the two pair forces are
-      equal and opposite to round-off;
-    * ``net_pair_force`` (2,): the sum of all pair forces (zero to round-off);
+    * ``force`` (N, d): the contact force on each solid: the force density integrated over
+      the nodes (cells of area dx dy, volume dx dy dz in 3D), each node's force shared
+      among the solids in proportion to their solid fractions ``ws_n`` there;
+      ``pair_force`` and ``wall_force`` (N, d) its two parts.  For an isolated pair the two
+      pair forces are equal and opposite to round-off;
+    * ``net_pair_force`` (d,): the sum of all pair forces (zero to round-off);
     * ``max_contact_pressure``, ``max_wall_pressure``: the largest Pi on the corners;
     * ``min_gap`` (N, N): ``min(phi_i + phi_j)`` over the nodes where i and j are the two
       nearest solids and both |phi| < ``gap_band`` h (where the level sets are distances,
       not clipped): the distance between the two surfaces, negative when they overlap
       (minus the overlap depth); +inf when they are farther apart than that; NaN on the
       diagonal;
-    * ``overlap_area`` (N, N): area of the nodes inside both i and j (phi_i < 0 and
-      phi_j < 0, counted where they are the two nearest solids);
+    * ``overlap_area`` (N, N): area (in 3D: volume) of the nodes inside both i and j
+      (phi_i < 0 and phi_j < 0, counted where they are the two nearest solids);
     * ``wall_gap`` (N,): ``min(phi_k + phi_w)`` over the nodes within the band and the
-      non-periodic edges: the distance from solid k to the nearest wall, negative once it
+      non-periodic edges (faces): the distance from solid k to the nearest wall, negative once it
       crossed it; +inf if none.
     """
     contact = contact if contact is not None else Contact()
     g = model.grid
-    dA = g.cell_area
+    nd = g.ndim
+    dA = g.cell_area if nd == 2 else g.cell_volume  # the cell's d-dimensional measure
+    space = tuple(range(-nd, 0))  # the spatial axes
     N = model.n_solids
     h = model.h
     phi = state.phi
@@ -462,13 +512,15 @@ def contact_diagnostics(
     tot = jnp.sum(ws, axis=0, keepdims=True)
     owner = jnp.where(tot > 1e-300, ws / jnp.where(tot > 1e-300, tot, 1.0), 0.0)
 
+    ijk = "ijl"[:nd]
+
     def per_solid(f):
-        return jnp.einsum("kij,cij->kc", owner, f) * dA
+        return jnp.einsum(f"k{ijk},c{ijk}->kc", owner, f) * dA
 
     out["pair_force"] = per_solid(cf["pair_force"])
     out["wall_force"] = per_solid(cf["wall_force"])
     out["force"] = out["pair_force"] + out["wall_force"]
-    out["net_pair_force"] = jnp.sum(cf["pair_force"], axis=(-2, -1)) * dA
+    out["net_pair_force"] = jnp.sum(cf["pair_force"], axis=space) * dA
     out["max_contact_pressure"] = jnp.max(cf["Pi"])
     out["max_wall_pressure"] = jnp.max(cf["Pi_wall"])
     L = gap_band * h
@@ -494,7 +546,7 @@ def contact_diagnostics(
     wg = jnp.full((N,), jnp.inf)
     for phi_w, _ in wall_distances(model, "node"):
         sw = phi + jnp.asarray(phi_w)[None]
-        wg = jnp.minimum(wg, jnp.min(jnp.where(near, sw, jnp.inf), axis=(-2, -1)))
+        wg = jnp.minimum(wg, jnp.min(jnp.where(near, sw, jnp.inf), axis=space))
     out["wall_gap"] = wg
     return out
 
