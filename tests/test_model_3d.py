@@ -365,13 +365,7 @@ def test_relative_gravity_conserves_momentum_and_settles_a_sphere():
     -30.9 % at 6.4 cells across the sphere (16^3, t = 0.6), -23.6 % at 9.6 (24^3): the
     blurred interface makes the sphere hydrodynamically larger by about a cell; the bound
     below (within 40 %, and downward) is for this coarse CI grid."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "validation" / "settling_sphere.py"
-    spec = importlib.util.spec_from_file_location("settling_sphere", path)
-    ss = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(ss)
+    ss = _load_validation("settling_sphere")
     model, params = ss.build(16)
     s = model.initial_state(params)
     f = model.body_forces[0](dict(state=s, params=params, derived=model.derived(s, params), model=model))

@@ -264,8 +264,8 @@ class BoundaryConditions:
         self.rho_f0 = float(rho_f0)
         self.periodic = boundary.periodic
         self._glue = ()
-        lows = (grid.ax, grid.ay, getattr(grid, "az", None))[:d]
-        highs = (grid.bx, grid.by, getattr(grid, "bz", None))[:d]
+        lows = grid.lows
+        highs = grid.highs
         node_axes = grid.axes("node")
         # fraction along each tangential axis of the face, on the face's nodes (face-shaped)
         along = [(c - lo) / (hi - lo) for c, lo, hi in zip(node_axes, lows, highs, strict=True)]
@@ -413,7 +413,7 @@ class BoundaryConditions:
         """Node coordinates extended by ``g`` ghost layers (affine continuation):
         (d, nx + 2g, ny + 2g[, nz + 2g])."""
         gr = self.grid
-        lows = (gr.ax, gr.ay, getattr(gr, "az", None))[: self.ndim]
+        lows = gr.lows
         axes = [
             lo + (np.arange(-g, n + g) + 0.5) * h
             for lo, n, h in zip(lows, gr.shape("node"), gr.spacing, strict=True)

@@ -120,8 +120,8 @@ class Case:
             except ValueError as e:
                 bad(f"boundary: {e}")
         Xn = g.mesh("node")
-        lows = (g.ax, g.ay, getattr(g, "az", None))[:nd]
-        highs = (g.bx, g.by, getattr(g, "bz", None))[:nd]
+        lows = g.lows
+        highs = g.highs
         covered = np.zeros(Xn[0].shape, dtype=bool)  # nodes inside some solid
         for k, s in enumerate(self.solids):
             label = f"solids[{k}] ({s.name!r})"
@@ -248,7 +248,7 @@ class Case:
     def _extents(self) -> tuple[float, ...]:
         """The domain's length along each axis."""
         g = self.grid
-        return tuple(hi - lo for lo, hi in ((g.ax, g.bx), (g.ay, g.by), (getattr(g, "az", 0.0), getattr(g, "bz", 0.0)))[: g.ndim])
+        return tuple(hi - lo for lo, hi in zip(g.lows, g.highs, strict=True))
 
     def hydrostatic_mach(self):
         """``(M, rho0, |g|, L, lambda_f)`` with M = rho0 |g| L / lambda_f, L the domain's

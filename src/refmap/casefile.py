@@ -1705,8 +1705,8 @@ def _check_geometry(case: Case) -> None:
     coords = g.mesh("node")
     nd = len(coords)
     X, Y = coords[0], coords[1]
-    lows = (g.ax, g.ay, getattr(g, "az", None))[:nd]
-    highs = (g.bx, g.by, getattr(g, "bz", None))[:nd]
+    lows = g.lows
+    highs = g.highs
     periodic = case.boundary.periodic
     edge = np.zeros(X.shape, dtype=bool)
     for a in range(nd):

@@ -115,7 +115,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from refmap import blend
-from refmap.operators import SYM_COMPONENTS, div_node
+from refmap.operators import SYM_PAIRS, div_node
 
 __all__ = [
     "PAIR_COLUMNS_MAX_SOLIDS",
@@ -349,7 +349,7 @@ def wall_distances(model, loc="corner"):
     for axis, periodic in enumerate(model.bc.periodic):
         if periodic:
             continue
-        lo, hi = (getattr(g, "a" + "xyz"[axis]), getattr(g, "b" + "xyz"[axis]))
+        lo, hi = g.lows[axis], g.highs[axis]
         e = tuple(1.0 if b == axis else 0.0 for b in range(d))
         out += [(X[axis] - lo, e), (hi - X[axis], tuple(-c if c else 0.0 for c in e))]
     return out
@@ -371,9 +371,7 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     h = model.h
     N = model.n_solids
     cshape = g.shape("corner")
-    # the (a, b) index pairs of the symmetric components, in SYM_COMPONENTS order
-    comps = [(a, b) for a in range(nd) for b in range(a, nd)]
-    assert len(comps) == len(SYM_COMPONENTS[nd])
+    comps = SYM_PAIRS[nd]  # the (a, b) of each symmetric component, SYM_COMPONENTS order
     z = jnp.zeros(cshape, dtype=state.v.dtype)
     zeros = (z,) * len(comps)
     out = dict(Pi=z, Pi_wall=z, pair=zeros, wall=zeros, a=None, b=None)
@@ -385,7 +383,7 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     if N >= 2:
         a, b = _two_nearest(phic)
         pa, pb = _take(phic, a), _take(phic, b)
-        phip = model.bc.pad_linear(state.phi)[(Ellipsis, *(slice(1, -1),) * nd)]
+        phip = model.bc.pad_linear(state.phi)[model._core(1)]
         ga = _corner_gradient_of(phip, a, *g.spacing)
         gb = _corner_gradient_of(phip, b, *g.spacing)
         n_ = [u - w for u, w in zip(ga, gb, strict=True)]  # grad(phi_ab), not normalised

@@ -43,6 +43,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 from refmap import narrowband
@@ -660,8 +661,6 @@ def band_window_extent(phi, band, margin: int = WINDOW_MARGIN) -> tuple[int, ...
     """The largest extent (nodes per axis, over the solids) of the boxes round each band
     (``phi (S, ...)`` with ``phi <= band``) plus ``margin`` on each side: host-side, for
     choosing a static ``window``."""
-    import numpy as np
-
     phi = np.asarray(phi)
     nd = phi.ndim - 1
     ext = [0] * nd

@@ -66,6 +66,16 @@ class Grid:
     def spacing(self) -> tuple[float, float]:
         return (self.dx, self.dy)
 
+    @property
+    def lows(self) -> tuple[float, float]:
+        """The box's low end along each axis, ``(ax, ay)``."""
+        return (self.ax, self.ay)
+
+    @property
+    def highs(self) -> tuple[float, float]:
+        """The box's high end along each axis, ``(bx, by)``."""
+        return (self.bx, self.by)
+
     def shape(self, loc: Location = "node") -> tuple[int, int]:
         return (self.nx, self.ny) if loc == "node" else (self.nx + 1, self.ny + 1)
 
@@ -142,6 +152,16 @@ class Grid3D:
         return (self.dx, self.dy, self.dz)
 
     @property
+    def lows(self) -> tuple[float, float, float]:
+        """The box's low end along each axis, ``(ax, ay, az)``."""
+        return (self.ax, self.ay, self.az)
+
+    @property
+    def highs(self) -> tuple[float, float, float]:
+        """The box's high end along each axis, ``(bx, by, bz)``."""
+        return (self.bx, self.by, self.bz)
+
+    @property
     def h(self) -> float:
         """The smallest spacing."""
         return min(self.spacing)
@@ -156,7 +176,7 @@ class Grid3D:
             raise ValueError(f"unknown grid location {loc!r}; use 'node' or 'corner'")
         out = []
         for n, a, h in zip(
-            self.shape("node"), (self.ax, self.ay, self.az), self.spacing, strict=True
+            self.shape("node"), self.lows, self.spacing, strict=True
         ):
             out.append(a + (np.arange(n) + 0.5) * h if loc == "node" else a + np.arange(n + 1) * h)
         return tuple(out)

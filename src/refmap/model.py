@@ -40,6 +40,7 @@ from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
 from refmap.operators import (
     SYM_COMPONENTS,
+    SYM_PAIRS,
     advect,
     corner_average,
     div_node,
@@ -174,11 +175,6 @@ def solid_fractions(H):
     ws = ws * scale
     wf = jnp.clip(1.0 - jnp.sum(ws, axis=0), 0.0, 1.0)
     return ws, wf
-
-
-#: the (a, b) index pairs of a symmetric tensor's independent components, in
-#: ``operators.SYM_COMPONENTS`` order
-_SYM_PAIRS = {d: [(a, b) for a in range(d) for b in range(a, d)] for d in (2, 3)}
 
 
 def _stress_keys(components, nd: int) -> dict:
@@ -378,8 +374,8 @@ class Model:
         ``X[c] = xi_k[c] + shift[c]``.
         """
         g = self.grid
-        lows = (g.ax, g.ay, getattr(g, "az", None))[: self.ndim]
-        highs = (g.bx, g.by, getattr(g, "bz", None))[: self.ndim]
+        lows = g.lows
+        highs = g.highs
         per_axis = []
         for c, (a, b, periodic) in enumerate(zip(lows, highs, self.bc.periodic, strict=True)):
             x = xi_k[c]
@@ -699,13 +695,13 @@ class Model:
         if viscous:
             bulk = fl.bulk_viscosity * div_corner
             s_f = []
-            for a, b in _SYM_PAIRS[nd]:
+            for a, b in SYM_PAIRS[nd]:
                 if a == b:
                     s_f.append(-p + fl.eta * dv[a][a] + bulk)
                 else:
                     s_f.append(0.5 * fl.eta * (dv[a][b] + dv[b][a]))
         else:
-            s_f = [-p if a == b else jnp.zeros_like(p) for a, b in _SYM_PAIRS[nd]]
+            s_f = [-p if a == b else jnp.zeros_like(p) for a, b in SYM_PAIRS[nd]]
 
         out = dict(p_corner=p, div_corner=div_corner)
         N = self.n_solids
@@ -735,7 +731,7 @@ class Model:
         rho_s = jnp.where(valid, rho0 * det, rho0)
 
         s_mix = [wf_c * sf + jnp.sum(ws_c * sig[..., a, b], axis=0)
-                 for sf, (a, b) in zip(s_f, _SYM_PAIRS[nd], strict=True)]
+                 for sf, (a, b) in zip(s_f, SYM_PAIRS[nd], strict=True)]
         rho = wf_n * state.rho_f + jnp.sum(ws_n * node_average(rho_s, nd), axis=0)
         out.update(
             _stress_keys(s_mix, nd), rho=rho, F=F, J=jnp.where(valid, 1.0 / safe_det, 1.0),
@@ -981,8 +977,8 @@ class Model:
         """
         g = self.grid
         Xn = [jnp.asarray(a) for a in g.mesh("node")]
-        lows = (g.ax, g.ay, getattr(g, "az", None))[: self.ndim]
-        highs = (g.bx, g.by, getattr(g, "bz", None))[: self.ndim]
+        lows = g.lows
+        highs = g.highs
         _, shift = self.phi0(k, xi_k, return_shift=True)
         total = jnp.sum(ws)
         out = []

@@ -43,6 +43,9 @@ SYM_COMPONENTS = {
     3: ("xx", "xy", "xz", "yy", "yz", "zz"),
 }
 
+#: the (a, b) index pairs of those components, in the same order
+SYM_PAIRS = {d: tuple((a, b) for a in range(d) for b in range(a, d)) for d in (2, 3)}
+
 #: number of positional arguments of div_node -> dimension (d(d+1)/2 components + d spacings)
 _DIV_NODE_NARGS = {2: 1, 5: 2, 9: 3}
 

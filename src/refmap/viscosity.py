@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from refmap.linsolve import SeparableSolver, bicgstab, cg, solve_general, solve_spd
-from refmap.operators import div_node, grad_corner, laplacian
+from refmap.operators import SYM_PAIRS, div_node, grad_corner, laplacian
 
 
 def viscous_force(model, v, t, fluid, wf_c):
@@ -67,13 +67,10 @@ def _viscous_force_3d(model, v, t, fluid, wf_c):
     vp1 = vp[:, 1:-1, 1:-1, 1:-1]
     dv = [grad_corner(vp1[a], *sp) for a in range(3)]  # dv[a][b] = d v_a / d x_b
     bulk = fluid.bulk_viscosity * (dv[0][0] + dv[1][1] + dv[2][2])
-    comps = []
-    for a in range(3):
-        for b in range(a, 3):
-            if a == b:
-                comps.append(wf_c * (fluid.eta * dv[a][a] + bulk))
-            else:
-                comps.append(wf_c * (0.5 * fluid.eta * (dv[a][b] + dv[b][a])))
+    comps = [
+        wf_c * (fluid.eta * dv[a][a] + bulk) if a == b else wf_c * (0.5 * fluid.eta * (dv[a][b] + dv[b][a]))
+        for a, b in SYM_PAIRS[3]
+    ]
     return div_node(*comps, *sp) + fluid.extra_viscosity * laplacian(vp, *sp, g=2)
 
 

@@ -96,7 +96,7 @@ def _plane_spec(
     elif slice_at is None:
         k = (len(coords) - 1) // 2
     else:
-        lo, hi = (grid.ax, grid.ay, grid.az)[a], (grid.bx, grid.by, grid.bz)[a]
+        lo, hi = grid.lows[a], grid.highs[a]
         at = float(slice_at)
         if not lo <= at <= hi:
             raise ValueError(f"slice_at {at} is outside [{lo}, {hi}] along {_AXIS_NAMES[a]}")
@@ -109,8 +109,7 @@ def _plane_grid(grid: Grid3D, a: int) -> tuple[Grid, tuple[str, str]]:
     the names of its two axes."""
     b, c = (m for m in range(3) if m != a)
     n = grid.shape("node")
-    lo = (grid.ax, grid.ay, grid.az)
-    hi = (grid.bx, grid.by, grid.bz)
+    lo, hi = grid.lows, grid.highs
     return Grid(int(n[b]), int(n[c]), lo[b], hi[b], lo[c], hi[c]), (
         _AXIS_NAMES[b],
         _AXIS_NAMES[c],

@@ -520,7 +520,7 @@ def build_xdmf(grid: Grid | Grid3D, frames) -> str:
     ndim = grid.ndim
     cdims = tuple(grid.shape("corner"))[::-1]  # slowest first: (ny+1, nx+1) or (nz+1, ...)
     ndims = tuple(grid.shape("node"))[::-1]
-    origin = [grid.ax, grid.ay, grid.az] if ndim == 3 else [grid.ax, grid.ay]
+    origin = list(grid.lows)
     spacing = list(grid.spacing)
     for fr in frames:
         g = ET.SubElement(coll, "Grid", Name=f"frame_{fr.index:05d}", GridType="Uniform")
