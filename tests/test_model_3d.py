@@ -273,15 +273,16 @@ def _load_validation(name):
 @pytest.mark.parametrize("wave_axis, disp_axis", [(2, 0), (0, 1)])
 def test_3d_shear_wave_converges_at_second_order(wave_axis, disp_axis):
     """The finite-amplitude shear wave (exact, a k = 0.31) travelling along z (displacement
-    along x) and along x (displacement along y).  Measured relative max errors of the
-    velocity 0.2704 (16 cells) and 0.0629 (32): order 2.10 for every pair of axes, equal
-    to the 2D figures (the wave sees the same 1D stencils).  Issue 12 asks for >= 1.9."""
+    along x) and along x (displacement along y), forward Euler with the least stabilising
+    viscosity against the damped exact wave (validation/shear_wave.py).  Measured relative
+    max errors of the velocity 1.543e-2 (32 cells) and 3.972e-3 (64): order 1.96, equal to
+    the 2D figures (the wave sees the same 1D stencils).  Issue 12 asks for >= 1.9."""
     sw = _load_validation("shear_wave")
-    e16 = sw.run(16, dim=3, wave_axis=wave_axis, disp_axis=disp_axis)
     e32 = sw.run(32, dim=3, wave_axis=wave_axis, disp_axis=disp_axis)
-    assert e32[0] < 0.072 and e32[1] < 0.072
-    assert sw.orders([16, 32], [e16[0], e32[0]])[0] >= 1.9
-    assert e32[2] < 1e-6  # no velocity across the displacement appears
+    e64 = sw.run(64, dim=3, wave_axis=wave_axis, disp_axis=disp_axis)
+    assert e64[0] < 0.0046 and e64[1] < 0.0046
+    assert sw.orders([32, 64], [e32[0], e64[0]])[0] >= 1.9
+    assert e64[2] < 1e-9  # no velocity across the displacement appears
 
 
 def test_3d_pivot_holds_the_axle_and_lets_the_body_turn():

@@ -591,9 +591,12 @@ class Model:
         * solid wave: h / c_L, the fastest small-strain wave of every law;
         * wave damping: 2 extra_viscosity / M (M the longitudinal modulus).  Forward Euler
           amplifies an undamped elastic wave; with the damping nu k^2 of the extra viscosity
-          a mode is stable only if dt <= 2 nu / c^2 = 2 extra_viscosity / M, whatever its
-          wavenumber (measured: the thesis's circle at 64^2 blows up at 2x this limit and runs
-          at 0.6x); likewise 2 (eta + extra_viscosity) / lambda_f for sound in the fluid.
+          it multiplies a mode's energy by 1 - dt nu k^2 + (c k dt)^2 per step, which is
+          <= 1 for dt <= nu / c^2 = extra_viscosity / M whatever the wavenumber, i.e. at
+          the default cfl = 0.5 of the limit listed here (measured: the thesis's circle at
+          64^2 blows up at 2x the listed limit and runs at 0.6x; the exact shear wave of
+          validation/shear_wave.py stays at round-off for eight periods at 1x the energy
+          bound); likewise 2 (eta + extra_viscosity) / lambda_f for sound in the fluid.
           A limit whose viscosity is zero is skipped (forward Euler then slowly amplifies
           waves at any dt, so inviscid runs need some viscosity);
         * fluid sound: h / sqrt(lambda_f / rho0);
