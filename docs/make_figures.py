@@ -37,12 +37,16 @@ FSSI_RUNS = {
     ),
 }
 
-# 3D scenarios (docs/scenarios.md, "3D"): (run options, times drawn); a mid-plane slice of
-# the pressure and a 3D view of the surfaces at the last time
+# 3D scenarios (docs/scenarios.md, "3D"): (run options, times drawn, slice); a slice of the
+# pressure (the middle z plane unless the slice says otherwise) and a 3D view of the
+# surfaces at the last time
 RUNS_3D = {
-    "sphere_relax": (["--n", "32", "--t-end", "2", "--frames", "8"], [0.0, 0.25, 0.5, 2.0]),
-    "sphere_cavity": (["--n", "32", "--t-end", "4", "--frames", "8"], [0.0, 1.0, 2.0, 4.0]),
-    "cross": (["--n", "32", "--t-end", "4", "--frames", "8"], [0.0, 1.0, 2.0, 4.0]),
+    "sphere_relax": (["--n", "32", "--t-end", "2", "--frames", "8"], [0.0, 0.25, 0.5, 2.0], {}),
+    "sphere_cavity": (["--n", "32", "--t-end", "4", "--frames", "8"], [0.0, 1.0, 2.0, 4.0], {}),
+    "cross": (["--n", "32", "--t-end", "4", "--frames", "8"], [0.0, 1.0, 2.0, 4.0], {}),
+    # the plane z = -0.3 cuts three of the four spheres
+    "spheres_settle": (["--n", "32", "--frames", "16"], [0.0, 1.0, 2.0, 8.0],
+                       {"slice_axis": "z", "slice_at": -0.3}),
 }
 
 
@@ -100,11 +104,11 @@ def fssi_figures():
 def figures_3d():
     """docs/img/<scenario>_pressure.png (the middle z plane at four times) and
     docs/img/<scenario>_surface.png (the solid's surface at the last time drawn)."""
-    for name, (args, times) in RUNS_3D.items():
+    for name, (args, times, plane) in RUNS_3D.items():
         run = _run(name, args)
         grid, panels = _panels(run, times, "pressure")
         out = ROOT / "docs" / "img" / f"{name}_pressure.png"
-        save_panel_png(out, grid, panels, "pressure", "corner", ncols=2)
+        save_panel_png(out, grid, panels, "pressure", "corner", ncols=2, **plane)
         print("wrote", out)
         t, _, phis = panels[-1]
         out = ROOT / "docs" / "img" / f"{name}_surface.png"

@@ -294,10 +294,6 @@ def test_3d_settings_in_a_2d_file_name_the_key_and_value(path, value, key, words
 
 
 NOT_IN_3D = [
-    (("numerics",), {"fluid_model": "incompressible"}, "numerics.fluid_model",
-     ["not available in 3D yet", "(got 'incompressible')"]),
-    (("numerics",), {"viscosity": "implicit", "viscosity_preconditioner": "fast"},
-     "numerics.viscosity_preconditioner", ["not available in 3D yet", "(got 'fast')"]),
     (("numerics",), {"band_force": "solid"}, "numerics.band_force",
      ["not available in 3D yet", "(got 'solid')"]),
 ]

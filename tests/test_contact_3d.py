@@ -350,3 +350,28 @@ def test_spheres_collide_scenario_short_run_writes_a_readable_run(tmp_path):
     assert np.all(ds["contact_overlap_area"].values[:, 0, 1] == 0.0)
     assert np.nanmax(np.abs(f.values[-1])) > 0.0  # in contact
     assert abs(sim.conservation["fluid_mass_change"]["relative"]) < 0.01
+
+
+def test_spheres_settle_scenario_short_run_falls_and_keeps_the_fluid_mass(tmp_path):
+    """``spheres_settle``, coarse (16^3) and short, through Simulation as `refmap run` does:
+    finite; every sphere (all heavier than the fluid) has started to fall; the contact
+    numbers are in the frames with no overlap; the fluid mass is the initial one to
+    round-off (``fluid_mass = "conserved"``, exact by construction: the bound is 1e-12 of
+    the mass, ~1e4 ulps over the run's ~100 steps); the spheres' volume within 2 %."""
+    from refmap.io import open_run
+    from refmap.scenarios_3d import SETTLE_SPHERES
+    from refmap.simulation import Simulation
+
+    case = get_case("spheres_settle", 16).replace(t_end=0.2, frames=2)
+    assert case.contact == Contact() and case.grid.ndim == 3 and case.gravity[1] < 0
+    sim = Simulation(case, tmp_path / "run", progress=False, pictures=False, movie=False)
+    sim.run()
+    ds = open_run(tmp_path / "run")
+    assert ds.sizes["time"] == 3 and ds.sizes["solid"] == len(SETTLE_SPHERES)
+    assert np.all(np.isfinite(ds["v"].values))
+    vy = ds["solid_velocity"].values[-1, :, 1]
+    assert np.all(vy < -0.01), vy
+    assert np.all(np.nan_to_num(ds["contact_overlap_area"].values) == 0.0)
+    c = sim.conservation
+    assert abs(c["fluid_mass_change"]["relative"]) < 1e-12
+    assert abs(c["solid_area_change"]["relative"]) < 0.02

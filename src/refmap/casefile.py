@@ -23,8 +23,8 @@ has the faces ``back`` (z-low) and ``front`` (z-high), shapes are the 3D types o
 ``refmap.geometry.SHAPES_3D`` (and CSG / transforms of them), laws get ``dim = 3`` without
 writing it, and ``[initial_velocity]`` takes ``u``, ``v``, ``w`` in x, y, z (a file holds
 ``(3, nx, ny, nz)``); a 3D pivot anchor is an axle (``center`` x, y, z, ``axis``,
-``half_length``).  Settings the 3D step does not have yet (the incompressible fluid,
-the 'fast' viscous preconditioner) are errors naming their key.
+``half_length``).  Settings the 3D step does not have yet (``band_force = "solid"``) are
+errors naming their key.
 
 Public API
 ----------

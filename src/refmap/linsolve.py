@@ -9,7 +9,7 @@
 * :func:`bicgstab`, :func:`solve_general` -- the same for a nonsymmetric operator
   (BiCGSTAB; the transposed system, for reverse mode, is solved the same way).
 * :class:`SeparableSolver` -- an exact fast solve of the constant-coefficient operator
-  ``a0 - ax Dxx - ay Dyy`` on a node grid, with ``Dxx`` and ``Dyy`` the three-point second
+  ``a0 - ax Dxx - ay Dyy`` (``- az Dzz`` in 3D) on a node grid, with ``Dxx`` and ``Dyy`` the three-point second
   differences whose first ghost node is the odd (``-f_0``, a Dirichlet condition on the
   cell face) or even (``+f_0``, a Neumann condition) reflection of the first node, or
   periodic.  Each axis is diagonalised by a fast orthogonal transform:
@@ -219,13 +219,15 @@ def _check_kind(kind):
 
 @dataclass(frozen=True)
 class SeparableSolver:
-    """Exact fast solve of ``(a0 - ax Dxx - ay Dyy) x = b`` on an ``nx x ny`` node grid.
+    """Exact fast solve of ``(a0 - ax Dxx - ay Dyy [- az Dzz]) x = b`` on an ``nx x ny``
+    (``x nz``) node grid.
 
     ``kinds``: per axis ``"periodic"`` or ``(low, high)`` with each ``"even"`` or ``"odd"``
-    (see the module docstring); ``dx``, ``dy`` the spacings.  ``a0``, ``ax``, ``ay`` may be
-    traced scalars (or arrays broadcasting against the leading axes of b, e.g. one value
-    per velocity component); ``a0 - ax lam_x - ay lam_y`` must not vanish (a0 > 0 and
-    ax, ay >= 0 suffice).
+    (see the module docstring); ``dx``, ``dy`` (``dz``) the spacings; ``nz > 0`` makes it
+    3D (then give three kinds and one more coefficient to every method).  ``a0``, ``ax``,
+    ``ay`` (``az``) may be traced scalars (or arrays broadcasting against the leading axes
+    of b, e.g. one value per velocity component); ``a0 - sum_k a_k lam_k`` must not vanish
+    (a0 > 0 and a_k >= 0 suffice).
     """
 
     nx: int
@@ -233,49 +235,69 @@ class SeparableSolver:
     dx: float
     dy: float
     kinds: tuple
+    nz: int = 0
+    dz: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "kinds", tuple(_check_kind(k) for k in self.kinds))
-        if len(self.kinds) != 2:
-            raise ValueError(f"SeparableSolver needs one kind per axis, got {self.kinds!r}")
+        if len(self.kinds) != self.ndim:
+            raise ValueError(
+                f"SeparableSolver needs one kind per axis ({self.ndim}), got {self.kinds!r}"
+            )
+
+    @property
+    def ndim(self) -> int:
+        return 3 if self.nz else 2
 
     def eigenvalues(self):
-        """(lam_x (nx, 1), lam_y (1, ny)): eigenvalues of Dxx and Dyy in transform order."""
-        lx = _eigenvalues(self.nx, self.dx, self.kinds[0])[:, None]
-        ly = _eigenvalues(self.ny, self.dy, self.kinds[1])[None, :]
-        return jnp.asarray(lx), jnp.asarray(ly)
+        """Per axis the eigenvalues of its second difference in transform order, shaped to
+        broadcast over the grid: (lam_x (nx, 1), lam_y (1, ny)) in 2D, (nx, 1, 1) ... in 3D."""
+        sizes = (self.nx, self.ny, self.nz)[: self.ndim]
+        steps = (self.dx, self.dy, self.dz)[: self.ndim]
+        out = []
+        for a, (n, h, kind) in enumerate(zip(sizes, steps, self.kinds, strict=True)):
+            shape = [1] * self.ndim
+            shape[a] = n
+            out.append(jnp.asarray(_eigenvalues(n, h, kind).reshape(shape)))
+        return tuple(out)
 
-    def apply(self, x, a0, ax, ay):
-        """``(a0 - ax Dxx - ay Dyy) x`` by the transforms (the operator it inverts)."""
-        return self._diag(x, lambda d: d, a0, ax, ay)
+    def apply(self, x, a0, *coefs):
+        """``(a0 - ax Dxx - ay Dyy [- az Dzz]) x`` by the transforms (the operator it inverts)."""
+        return self._diag(x, lambda d: d, a0, coefs)
 
-    def solve(self, b, a0, ax, ay):
-        return self._diag(b, lambda d: 1.0 / d, a0, ax, ay)
+    def solve(self, b, a0, *coefs):
+        return self._diag(b, lambda d: 1.0 / d, a0, coefs)
 
-    def solve_semidefinite(self, b, ax, ay):
-        """The pseudo-inverse of ``-ax Dxx - ay Dyy`` (``a0 = 0``) applied to ``b``: the
-        operator's null modes (the constant, where every axis is periodic or even-even)
-        are set to zero; ax, ay > 0."""
+    def solve_semidefinite(self, b, *coefs):
+        """The pseudo-inverse of ``-ax Dxx - ay Dyy [- az Dzz]`` (``a0 = 0``) applied to
+        ``b``: the operator's null modes (the constant, where every axis is periodic or
+        even-even) are set to zero; every coefficient > 0."""
 
         def inv(d):
             pos = d > 0
             return jnp.where(pos, 1.0 / jnp.where(pos, d, 1.0), 0.0)
 
-        return self._diag(b, inv, 0.0, ax, ay)
+        return self._diag(b, inv, 0.0, coefs)
 
-    def _diag(self, b, fn, a0, ax, ay):
-        lx, ly = self.eigenvalues()
-        a0, ax, ay = (jnp.asarray(a)[..., None, None] for a in (a0, ax, ay))
-        d = fn(a0 - ax * lx - ay * ly)
+    def _diag(self, b, fn, a0, coefs):
+        nd = self.ndim
+        if len(coefs) != nd:
+            raise ValueError(f"SeparableSolver ({nd}D) needs {nd} axis coefficients, got {len(coefs)}")
+        lams = self.eigenvalues()
+        grid_axes = (None,) * nd
+        d = jnp.asarray(a0)[(..., *grid_axes)]
+        for c, lam in zip(coefs, lams, strict=True):
+            d = d - jnp.asarray(c)[(..., *grid_axes)] * lam
+        d = fn(d)
         # the real transforms first, the periodic (complex) ones last, inverted in reverse
-        order = sorted((0, 1), key=lambda a: self.kinds[a] == "periodic")
+        order = sorted(range(nd), key=lambda a: self.kinds[a] == "periodic")
         B = b
         for a in order:
-            B = _move(_forward(_move(B, a - 2), self.kinds[a]), a - 2)
+            B = jnp.moveaxis(_forward(_move(B, a - nd), self.kinds[a]), -1, a - nd)
         B = B * d
         n_periodic = sum(k == "periodic" for k in self.kinds)
         for i, a in enumerate(reversed(order)):
-            B = _move(_inverse(_move(B, a - 2), self.kinds[a]), a - 2)
+            B = jnp.moveaxis(_inverse(_move(B, a - nd), self.kinds[a]), -1, a - nd)
             if i + 1 == n_periodic:  # every complex transform undone: back to real
                 B = jnp.real(B)
         return B

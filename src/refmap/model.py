@@ -778,12 +778,13 @@ class Model:
         # only the material's own nodes (phi < 0 at the corner): the extrapolated band's J
         # is re-made from the interior every step and does not respond to a divergence
         # there (correcting it too made the lid cavity's disc vanish at 32^2 by t = 6)
-        inside = derived["phic"][:, 1:, 1:] < 0.0
-        ws = derived["ws_c"][:, 1:, 1:]
-        logJ = jnp.where(inside, jnp.log(derived["J"][:, 1:, 1:]), 0.0)
+        top = (slice(1, None),) * self.ndim  # each node's top-right corner
+        inside = derived["phic"][(slice(None),) + top] < 0.0
+        ws = derived["ws_c"][(slice(None),) + top]
+        logJ = jnp.where(inside, jnp.log(derived["J"][(slice(None),) + top]), 0.0)
         src = -rate * jnp.sum(ws * logJ, axis=0)
         keep = self.projection.keep
-        wf = derived["wf_c"][1:, 1:] * keep
+        wf = derived["wf_c"][top] * keep
         if self._anchor_free is not None:
             # nodes an anchor holds take no source: their rows of A can be null (all four
             # velocities held), and even a round-off source there made CG diverge (rotor at
@@ -1111,7 +1112,7 @@ class Model:
             p_fluid = self.step(state, params, dt, return_pressure=True)
             if not self.projection.has_outflow:
                 p_fluid = p_fluid - jnp.mean(p_fluid)
-            pc = jnp.pad(p_fluid, ((1, 0), (1, 0)), mode="edge")
+            pc = jnp.pad(p_fluid, ((1, 0),) * self.ndim, mode="edge")
             pressure = pressure + pc
         nd = self.ndim
         out = {name: state.v[a] for a, name in enumerate("uvw"[:nd])}
@@ -1140,11 +1141,6 @@ def check_3d_support(numerics: Numerics, solids, body_forces=()) -> None:
     are 2D-only so far."""
     n = numerics
     todo = []
-    if n.fluid_model != "compressible":
-        todo.append(f"numerics.fluid_model {n.fluid_model!r} (the 3D projection is not written yet)")
-    if n.viscosity == "implicit" and n.viscosity_preconditioner != "jacobi":
-        todo.append(f"numerics.viscosity_preconditioner {n.viscosity_preconditioner!r} (the 'fast' "
-                    "separable solver is 2D; use 'jacobi')")
     if n.band_force != "local":
         todo.append(f"numerics.band_force {n.band_force!r}")
     for s in solids:

@@ -57,11 +57,25 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from refmap.boundary import _waveform
+from refmap.boundary import AXIS_FACES, _waveform
 from refmap.linsolve import SeparableSolver, cg, solve_spd
 
-_HIGH = {"left": False, "right": True, "bottom": False, "top": True}
-_AXIS = {"left": 0, "right": 0, "bottom": 1, "top": 1}
+_HIGH = {"left": False, "right": True, "bottom": False, "top": True, "back": False, "front": True}
+_AXIS = {"left": 0, "right": 0, "bottom": 1, "top": 1, "back": 2, "front": 2}
+
+
+def _faces(ndim):
+    """The face names of a ``ndim``-D box, low before high, axis by axis."""
+    return [name for pair in AXIS_FACES[:ndim] for name in pair]
+
+
+def _face_area(grid, axis):
+    """The area (2D: length) per node of a face normal to ``axis``."""
+    out = 1.0
+    for a, h in enumerate(grid.spacing):
+        if a != axis:
+            out *= h
+    return out
 
 
 def _is_number(x) -> bool:
@@ -74,7 +88,7 @@ def check_boundary(boundary, grid) -> None:
     difference (no divergence-free field would meet them)."""
     groups: dict = {}
     scale = 0.0
-    for name in ("left", "right", "bottom", "top"):
+    for name in _faces(grid.ndim):
         edge = getattr(boundary, name)
         if edge == "periodic":
             continue
@@ -90,7 +104,7 @@ def check_boundary(boundary, grid) -> None:
             if un == 0.0:
                 continue
             flux = _face_values(name, (seg,), grid, 0.0, waveform=False).sum()
-            flux *= grid.dy if axis == 0 else grid.dx
+            flux *= (grid.dy if axis == 0 else grid.dx) if grid.ndim == 2 else _face_area(grid, axis)
             sign = -1.0 if _HIGH[name] else 1.0  # inflow positive
             key = (seg.ramp, seg.omega)
             groups[key] = groups.get(key, 0.0) + sign * float(flux)
@@ -109,31 +123,68 @@ def check_boundary(boundary, grid) -> None:
             )
 
 
-def _face_values(name, edge, grid, t, waveform=True):
-    """The normal velocity on the edge's faces (one value per node along it) at time t."""
+def _along(name, grid):
+    """The positions s in [0, 1] of the face's nodes along its tangential axes: one (n,)
+    array per tangential axis (one in 2D, two in 3D), broadcast to the face's shape."""
     axis = _AXIS[name]
-    xn, yn = grid.axes("node")
-    s_along = (
-        (yn - grid.ay) / (grid.by - grid.ay) if axis == 0 else (xn - grid.ax) / (grid.bx - grid.ax)
-    )
-    out = jnp.zeros(s_along.shape)
+    axes = grid.axes("node")
+    lows, highs = grid.lows, grid.highs
+    tang = [a for a in range(grid.ndim) if a != axis]
+    out = []
+    for k, a in enumerate(tang):
+        s = (axes[a] - lows[a]) / (highs[a] - lows[a])
+        shape = [1] * len(tang)
+        shape[k] = -1
+        out.append(np.asarray(s).reshape(shape))
+    return out
+
+
+def _face_values(name, edge, grid, t, waveform=True):
+    """The normal velocity on the edge's faces (one value per node along it, 2D; per node
+    of the face, 3D) at time t."""
+    axis = _AXIS[name]
+    if grid.ndim == 2:
+        xn, yn = grid.axes("node")
+        s_along = (
+            (yn - grid.ay) / (grid.by - grid.ay) if axis == 0 else (xn - grid.ax) / (grid.bx - grid.ax)
+        )
+        out = jnp.zeros(s_along.shape)
+        for seg in edge:
+            if seg.kind not in ("wall", "velocity"):
+                continue
+            m = (s_along >= seg.start) & (s_along < seg.end)
+            if seg.end >= 1.0:
+                m |= s_along >= 1.0
+            prof = np.ones_like(s_along)
+            if seg.profile == "parabolic":
+                s = (s_along - seg.start) / (seg.end - seg.start)
+                prof = 4.0 * s * (1.0 - s)
+            val = jnp.where(jnp.asarray(m), seg.velocity[axis] * prof, 0.0)
+            out = out + (val * _waveform(seg, t) if waveform else val)
+        return np.asarray(out) if not waveform else out
+    # 3D: whole-face segments (Boundary refuses others); "parabolic" is the product of the
+    # parabolas across the two tangential axes, as in refmap.boundary
+    s1, s2 = _along(name, grid)
+    shape = np.broadcast_shapes(s1.shape, s2.shape)
+    out = jnp.zeros(shape)
     for seg in edge:
         if seg.kind not in ("wall", "velocity"):
             continue
-        m = (s_along >= seg.start) & (s_along < seg.end)
-        if seg.end >= 1.0:
-            m |= s_along >= 1.0
-        prof = np.ones_like(s_along)
+        prof = np.ones(shape)
         if seg.profile == "parabolic":
-            s = (s_along - seg.start) / (seg.end - seg.start)
-            prof = 4.0 * s * (1.0 - s)
-        val = jnp.where(jnp.asarray(m), seg.velocity[axis] * prof, 0.0)
+            prof = 16.0 * s1 * (1.0 - s1) * s2 * (1.0 - s2)
+        val = jnp.asarray(seg.velocity[axis] * prof)
         out = out + (val * _waveform(seg, t) if waveform else val)
     return np.asarray(out) if not waveform else out
 
 
 def _outflow_nodes(name, edge, grid):
-    """(n,) bool: the nodes along an edge that lie on an ``outflow`` segment."""
+    """(n,) bool (2D) or the face's shape (3D): the nodes of a face on an ``outflow``
+    segment."""
+    if grid.ndim == 3:  # whole-face segments
+        s1, s2 = _along(name, grid)
+        shape = np.broadcast_shapes(s1.shape, s2.shape)
+        return np.full(shape, any(seg.kind == "outflow" for seg in edge))
     axis = _AXIS[name]
     xn, yn = grid.axes("node")
     s_along = np.asarray(
@@ -147,6 +198,14 @@ def _outflow_nodes(name, edge, grid):
                 m |= s_along >= 1.0
             out |= m
     return out
+
+
+def _index(ndim, axis, i):
+    """The index tuple taking ``i`` (an int or a slice) along ``axis`` of an ``ndim``-D
+    array and everything along the others."""
+    idx = [slice(None)] * ndim
+    idx[axis] = i
+    return tuple(idx)
 
 
 class Projection:
@@ -167,23 +226,27 @@ class Projection:
         self.rtol = float(rtol)
         self.maxiter = int(maxiter)
         self.preconditioner_kind = preconditioner
+        nd = g.ndim
+        self.ndim = nd
+        self.spacing = tuple(g.spacing)
+        faces = _faces(nd)
         out = {
             name: _outflow_nodes(name, getattr(model.boundary, name), g)
-            for name in _AXIS
+            for name in faces
             if getattr(model.boundary, name) != "periodic"
         }
         self.outflow = out
-        mask = np.ones((2, g.nx, g.ny))
-        keep = np.ones((g.nx, g.ny))
-        if not self.periodic[0]:
-            # the left face's normal velocity: prescribed, except on an outflow (free)
-            mask[0, 0, :] = out["left"]
-            keep[0, out["left"]] = 0.0
-            keep[-1, out["right"]] = 0.0
-        if not self.periodic[1]:
-            mask[1, :, 0] = out["bottom"]
-            keep[out["bottom"], 0] = 0.0
-            keep[out["top"], -1] = 0.0
+        mask = np.ones((nd,) + tuple(g.shape()))
+        keep = np.ones(tuple(g.shape()))
+        for a, (lo, hi) in enumerate(AXIS_FACES[:nd]):
+            if self.periodic[a]:
+                continue
+            # the low face's normal velocity: prescribed, except on an outflow (free)
+            first = _index(nd, a, 0)
+            last = _index(nd, a, -1)
+            mask[(a,) + first] = out[lo]
+            keep[first][out[lo]] = 0.0
+            keep[last][out[hi]] = 0.0
         self.mask = mask
         self.has_outflow = bool(np.any(keep == 0.0))
         self.keep = keep
@@ -197,54 +260,68 @@ class Projection:
 
         kinds = tuple(
             "periodic" if p else (kind(lo), kind(hi))
-            for p, (lo, hi) in zip(
-                self.periodic, (("left", "right"), ("bottom", "top")), strict=True
-            )
+            for p, (lo, hi) in zip(self.periodic, AXIS_FACES[:nd], strict=True)
         )
-        self.fast = SeparableSolver(g.nx, g.ny, g.dx, g.dy, kinds)
+        if nd == 2:
+            self.fast = SeparableSolver(g.nx, g.ny, g.dx, g.dy, kinds)
+        else:
+            self.fast = SeparableSolver(g.nx, g.ny, g.dx, g.dy, kinds, nz=g.nz, dz=g.dz)
         self.fast_definite = any(k != "periodic" and "odd" in k for k in kinds)
 
     # ------------------------------------------------------------------ operators
     def _edge(self, name, t):
         return _face_values(name, getattr(self.boundary, name), self.grid, t)
 
-    def _div(self, v, hi_u, hi_v):
-        """Forward-difference divergence with the given high-edge face values (None: wrap)."""
-        g = self.grid
-        u, w = v[0], v[1]
-        up = jnp.concatenate([u[1:], u[:1] if hi_u is None else hi_u[None, :]], axis=0)
-        wp = jnp.concatenate([w[:, 1:], w[:, :1] if hi_v is None else hi_v[:, None]], axis=1)
-        return (up - u) / g.dx + (wp - w) / g.dy
+    def _div(self, v, *his):
+        """Forward-difference divergence with the given high-edge face values, one per axis
+        (None: wrap)."""
+        out = None
+        for a, (h, hi) in enumerate(zip(self.spacing, his, strict=True)):
+            c = v[a]
+            nxt = c[_index(self.ndim, a, slice(1, None))]
+            beyond = c[_index(self.ndim, a, slice(0, 1))] if hi is None else jnp.expand_dims(hi, a)
+            term = (jnp.concatenate([nxt, beyond], axis=a) - c) / h
+            out = term if out is None else out + term
+        return out
+
+    def _his(self, t):
+        """Per axis the high face's normal velocity at t (None where periodic)."""
+        return [
+            None if self.periodic[a] else self._edge(hi, t)
+            for a, (_, hi) in enumerate(AXIS_FACES[: self.ndim])
+        ]
 
     def prescribe(self, v, t):
         """``v`` with the low edges' normal components set to the edges' normal velocity."""
         out = v
-        if not self.periodic[0]:
-            face = jnp.where(self.outflow["left"], v[0, 0, :], self._edge("left", t))
-            out = out.at[0, 0, :].set(face)
-        if not self.periodic[1]:
-            face = jnp.where(self.outflow["bottom"], v[1, :, 0], self._edge("bottom", t))
-            out = out.at[1, :, 0].set(face)
+        for a, (lo, _) in enumerate(AXIS_FACES[: self.ndim]):
+            if self.periodic[a]:
+                continue
+            idx = (a,) + _index(self.ndim, a, 0)
+            face = jnp.where(self.outflow[lo], v[idx], self._edge(lo, t))
+            out = out.at[idx].set(face)
         return out
 
     def divergence(self, v, t):
-        """The discrete divergence D v (nx, ny) the projection zeroes, edge data at t (zero
-        on outflow rows, whose continuity equation the outgoing face velocity closes)."""
+        """The discrete divergence D v (the grid's shape) the projection zeroes, edge data
+        at t (zero on outflow rows, whose continuity equation the outgoing face velocity
+        closes)."""
         v = self.prescribe(v, t)
-        hi_u = None if self.periodic[0] else self._edge("right", t)
-        hi_v = None if self.periodic[1] else self._edge("top", t)
-        return self._div(v, hi_u, hi_v) * self.keep
+        return self._div(v, *self._his(t)) * self.keep
 
     def B(self, w):
         """The linear part of D on the free velocity components (zero edge data)."""
         g = self.grid
-        zu = None if self.periodic[0] else jnp.zeros(g.ny)
-        zv = None if self.periodic[1] else jnp.zeros(g.nx)
-        return self._div(w * self.mask, zu, zv) * self.keep
+        shape = tuple(g.shape())
+        zeros = [
+            None if self.periodic[a] else jnp.zeros(shape[:a] + shape[a + 1:])
+            for a in range(self.ndim)
+        ]
+        return self._div(w * self.mask, *zeros) * self.keep
 
     def BT(self, p):
-        """B^T p (2, nx, ny); ``-B^T`` is the pressure gradient G."""
-        tmpl = jax.ShapeDtypeStruct((2,) + p.shape, p.dtype)
+        """B^T p (ndim, *shape); ``-B^T`` is the pressure gradient G."""
+        tmpl = jax.ShapeDtypeStruct((self.ndim,) + p.shape, p.dtype)
         return jax.linear_transpose(self.B, tmpl)(p)[0]
 
     def gradient(self, p):
@@ -252,32 +329,32 @@ class Projection:
         return -self.BT(p)
 
     def _row_sums(self, weight):
-        """Per continuity row (node i, j), the sums of ``weight`` over the free velocity
-        components it reads: u at i and i + 1, v at j and j + 1 (zero beyond a wall)."""
-        g = self.grid
-        wu = weight * self.mask[0]
-        wv = weight * self.mask[1]
-        if self.periodic[0]:
-            ux = wu + jnp.roll(wu, -1, axis=0)
-        else:
-            ux = wu + jnp.concatenate([wu[1:], jnp.zeros((1, g.ny))], axis=0)
-        if self.periodic[1]:
-            vy = wv + jnp.roll(wv, -1, axis=1)
-        else:
-            vy = wv + jnp.concatenate([wv[:, 1:], jnp.zeros((g.nx, 1))], axis=1)
-        return ux, vy
+        """Per continuity row (node), per axis the sums of ``weight`` over the free velocity
+        components it reads: u at i and i + 1, v at j and j + 1, ... (zero beyond a wall)."""
+        out = []
+        for a in range(self.ndim):
+            wa = weight * self.mask[a]
+            if self.periodic[a]:
+                out.append(wa + jnp.roll(wa, -1, axis=a))
+            else:
+                pad = jnp.zeros_like(wa[_index(self.ndim, a, slice(0, 1))])
+                out.append(wa + jnp.concatenate([wa[_index(self.ndim, a, slice(1, None))], pad], axis=a))
+        return out
 
     def moving_rows(self, weight):
-        """(nx, ny) 0/1: the continuity rows with at least one velocity component that the
-        correction moves (``weight > 0`` and not prescribed)."""
-        ux, vy = self._row_sums(weight)
-        return (ux + vy > 0).astype(jnp.float64)
+        """(the grid's shape) 0/1: the continuity rows with at least one velocity component
+        that the correction moves (``weight > 0`` and not prescribed)."""
+        sums = self._row_sums(weight)
+        total = sums[0]
+        for r in sums[1:]:
+            total = total + r
+        return (total > 0).astype(jnp.float64)
 
     def operator(self, rho, weight=None):
         """``A = B W rho^-1 B^T`` plus ``s P0`` on the constants (SPD on the velocities
         it moves); ``W`` (default 1) the weight of the pressure correction per node."""
         inv = 1.0 / rho
-        s = jax.lax.stop_gradient(jnp.mean(inv)) * (2.0 / self.grid.dx**2 + 2.0 / self.grid.dy**2)
+        s = jax.lax.stop_gradient(jnp.mean(inv)) * sum(2.0 / h**2 for h in self.spacing)
         if weight is not None:
             inv = inv * weight
 
@@ -302,26 +379,30 @@ class Projection:
             inv = inv * weight
         if self.preconditioner_kind == "fast":
             c = jnp.mean(inv)
+            cs = (c,) * self.ndim
             s0 = sg(s)
 
             def P(r):
                 # the constants are A's eigenvector with eigenvalue s; the rest is the
                 # constant-coefficient Laplacian's pseudo-inverse
                 mean = jnp.mean(r)
-                return self.fast.solve_semidefinite(r - mean, c, c) + mean / s0
+                return self.fast.solve_semidefinite(r - mean, *cs) + mean / s0
 
             if not self.has_outflow:
                 return P
             keep, drop = self.keep, 1.0 - self.keep
             if self.fast_definite:
-                return lambda r: keep * self.fast.solve(keep * r, 0.0, c, c) + drop * r
+                return lambda r: keep * self.fast.solve(keep * r, 0.0, *cs) + drop * r
             return lambda r: keep * P(keep * r) + drop * r
         # the diagonal of B rho^-1 B^T: each node sees the free u at i and i + 1, v at j, j + 1
-        ux, vy = self._row_sums(inv)
+        sums = self._row_sums(inv)
+        diag = sums[0] / self.spacing[0] ** 2
+        for r, h in zip(sums[1:], self.spacing[1:], strict=True):
+            diag = diag + r / h**2
         if self.has_outflow:
-            diag = (ux / g.dx**2 + vy / g.dy**2) * self.keep + (1.0 - self.keep)
+            diag = diag * self.keep + (1.0 - self.keep)
         else:
-            diag = ux / g.dx**2 + vy / g.dy**2 + sg(s) / (g.nx * g.ny)
+            diag = diag + sg(s) / int(np.prod(g.shape()))
         return lambda r: r / diag
 
     # ------------------------------------------------------------------ the projection

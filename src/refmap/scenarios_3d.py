@@ -13,9 +13,13 @@ Importing this module registers them with :func:`refmap.scenarios.scenario`:
   inflow and outflow become two whole faces at right angles).
 * ``spheres_collide`` -- two soft spheres thrown at each other, slightly off-axis, in a
   light fluid in a closed box, with contact (:class:`refmap.contact.Contact`).
+* ``spheres_settle`` -- four soft spheres of different sizes and densities settling under
+  gravity (along -y) onto the floor of a closed box and piling up, with contact (the 2D
+  ``settle`` in 3D).
 
-``n`` is the number of cells along x.  The 3D step has no incompressible fluid yet
-(docs/method.md, "Three dimensions").
+``n`` is the number of cells along x.  Every scenario takes the incompressible fluid too
+(``case.replace(numerics=dataclasses.replace(case.numerics, fluid_model="incompressible"))``,
+or ``fluid_model = "incompressible"`` in a case file; docs/method.md, "Three dimensions").
 """
 
 from __future__ import annotations
@@ -136,5 +140,46 @@ def spheres_collide(n: int = 32) -> Case:
         t_end=1.0,
         frames=20,
         description=DESCRIPTIONS["spheres_collide"],
+        contact=Contact(),
+    )
+
+
+# (centre, radius, density) of the settling spheres: three near the floor, not quite
+# touching it or each other, and a fourth, heavier, above the hollow between them (over
+# the centre of the circle through the three centres, -0.03, -0.07 in x, z)
+SETTLE_SPHERES = (
+    ((-0.45, -0.55, -0.3), 0.32, 2.0),
+    ((0.35, -0.6, -0.35), 0.3, 1.8),
+    ((0.0, -0.55, 0.4), 0.3, 1.6),
+    ((-0.03, 0.0, -0.07), 0.28, 3.0),
+)
+
+
+@scenario("spheres_settle", "3D: four soft spheres settling under gravity onto the floor of a box and piling up (contact)")
+def spheres_settle(n: int = 32) -> Case:
+    # The 2D ``settle`` (scenarios_fssi) in a [-1, 1]^3 box: the thesis's solid (G = kappa =
+    # 10, densities 1.6-2), its fluid made five times stiffer (lambda_f = 5) as in 2D, so
+    # that under g = 0.5 along -y the fluid's stratification g H / lambda_f = 0.2 is mild,
+    # and the extra viscosity of spheres_collide (0.05) so that the solids' wave-damping
+    # step limit (2 extra_viscosity / M, Model.time_step) is not the smallest.  Energy-
+    # consistent compression and the default contact (walls included), as every contact
+    # scenario.  The fluid starts uniform: switching gravity on first sets the column
+    # oscillating, and the spheres bob with it.
+    solids = tuple(
+        Solid(shape=Sphere(center=c, radius=r), law=NeoHookean(G=10.0, kappa=10.0, rho0=rho, dim=3),
+              name=f"sphere{k} (r={r:g}, rho={rho:g})")
+        for k, (c, r, rho) in enumerate(SETTLE_SPHERES)
+    )
+    return Case(
+        name="spheres_settle",
+        grid=Grid3D(n, n, n, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0),
+        solids=solids,
+        boundary=Boundary(**CLOSED_BOX),
+        fluid=FluidParams(lambda_f=5.0, extra_viscosity=0.05),
+        numerics=Numerics(compression="corner", fluid_mass="conserved"),
+        gravity=(0.0, -0.5, 0.0),
+        t_end=8.0,
+        frames=32,
+        description=DESCRIPTIONS["spheres_settle"],
         contact=Contact(),
     )

@@ -38,6 +38,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from refmap.boundary import AXIS_FACES
 from refmap.linsolve import SeparableSolver, bicgstab, cg, solve_general, solve_spd
 from refmap.operators import SYM_PAIRS, div_node, grad_corner, laplacian
 
@@ -92,7 +93,7 @@ def _edge_kind(edge, component: int, normal_axis: int) -> str:
 def axis_kinds(boundary, component: int):
     """Per axis the :class:`SeparableSolver` kind for one velocity component."""
     out = []
-    for axis, (lo, hi) in enumerate((("left", "right"), ("bottom", "top"))):
+    for axis, (lo, hi) in enumerate(AXIS_FACES[: boundary.ndim]):
         e_lo, e_hi = getattr(boundary, lo), getattr(boundary, hi)
         if e_lo == "periodic":
             out.append("periodic")
@@ -113,11 +114,10 @@ class ImplicitViscosity:
         self.rtol = float(rtol)
         self.maxiter = int(maxiter)
         self.ndim = getattr(model, "ndim", 2)
-        if self.ndim == 3 and preconditioner == "fast":
-            raise ValueError("numerics viscosity_preconditioner 'fast' is 2D only (its separable "
-                             "solver is 2D); use 'jacobi' in 3D")
-        self.fast = () if self.ndim == 3 else tuple(
-            SeparableSolver(g.nx, g.ny, g.dx, g.dy, axis_kinds(model.boundary, c)) for c in (0, 1)
+        extra = {} if self.ndim == 2 else {"nz": g.nz, "dz": g.dz}
+        self.fast = tuple(
+            SeparableSolver(g.nx, g.ny, g.dx, g.dy, axis_kinds(model.boundary, c), **extra)
+            for c in range(self.ndim)
         )
         # the corner-stress operator is symmetric on periodic axes; at edges the ghost
         # reflections enter its u-v coupling asymmetrically (tested), so BiCGSTAB there
@@ -138,7 +138,7 @@ class ImplicitViscosity:
         ``"jacobi"``: division by the operator's diagonal away from the edges,
         ``rho + dt (c_x / dx^2 + c_y / dy^2)`` with the corner weights of each node's stencil.
         ``"fast"``: per velocity component the exact inverse of the constant-coefficient
-        ``rho_m - dt (a_x Dxx + a_y Dyy)`` (rho_m the mean density, a's from the mean fluid
+        ``rho_m - dt (a_x Dxx + a_y Dyy [+ a_z Dzz])`` (rho_m the mean density, a's from the mean fluid
         fraction; :class:`refmap.linsolve.SeparableSolver`)."""
         sg = jax.lax.stop_gradient
         g = self.model.grid
@@ -161,9 +161,11 @@ class ImplicitViscosity:
         shear = e + wf * 0.5 * eta
 
         def P(r):
-            u = self.fast[0].solve(r[0], rho_m, dt * normal, dt * shear)
-            w = self.fast[1].solve(r[1], rho_m, dt * shear, dt * normal)
-            return jnp.stack([u, w])
+            # component c: the normal coefficient along its own axis, shear along the others
+            return jnp.stack([
+                self.fast[c].solve(r[c], rho_m, *(dt * (normal if a == c else shear) for a in range(self.ndim)))
+                for c in range(self.ndim)
+            ])
 
         return P
 
