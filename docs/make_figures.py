@@ -48,6 +48,8 @@ RUNS_3D = {
     "spheres_settle": (["--n", "32", "--frames", "16"], [0.0, 1.0, 2.0, 8.0],
                        {"slice_axis": "z", "slice_at": -0.3}),
 }
+# the axis drawn upwards in the surface view (gravity along -y in spheres_settle)
+VERTICAL_3D = {"spheres_settle": "y"}
 
 
 def _run(name, args, prefix="doc"):
@@ -112,7 +114,7 @@ def figures_3d():
         print("wrote", out)
         t, _, phis = panels[-1]
         out = ROOT / "docs" / "img" / f"{name}_surface.png"
-        save_surface_png(out, phis, grid, time=t)
+        save_surface_png(out, phis, grid, time=t, vertical=VERTICAL_3D.get(name, "z"))
         print("wrote", out)
 
 

@@ -583,6 +583,11 @@ def test_surface_png(tmp_path):
     assert _is_png(save_surface_png(tmp_path / "none.png", none, GRID3))
     with pytest.raises(ValueError, match="Grid3D"):
         save_surface_png(tmp_path / "x.png", np.zeros((10, 9)), GRID2)
+    # y drawn upwards (gravity along -y): a different picture of the same surfaces
+    up_y = save_surface_png(tmp_path / "y.png", f["phi"], GRID3, time=0.25, vertical="y")
+    assert _is_png(up_y) and up_y.read_bytes() != p.read_bytes()
+    with pytest.raises(ValueError, match="vertical must be"):
+        save_surface_png(tmp_path / "q.png", f["phi"], GRID3, vertical="up")
 
 
 def test_derived_fields_3d(run3):

@@ -912,6 +912,7 @@ def save_surface_png(
     azim: float = -56.0,
     dpi: int = 120,
     figsize: tuple[float, float] = (6.0, 5.0),
+    vertical: str = "z",
 ) -> Path:
     """Save a 3D view of each solid's interface ``phi = level`` (default 0) as a PNG.
 
@@ -919,7 +920,9 @@ def save_surface_png(
     ``(nx, ny, nz)`` (nodes; corners work too).  Each surface is triangulated by
     :func:`level_set_triangles` and drawn with matplotlib's mplot3d ``Poly3DCollection``
     in its own colour (``colors``, default the tab10 cycle), lit from one fixed direction;
-    the box is the domain, at true aspect ratio, seen from ``elev``/``azim`` (degrees).
+    the box is the domain, at true aspect ratio, seen from ``elev``/``azim`` (degrees),
+    with the axis ``vertical`` ("x", "y" or "z") drawn upwards (e.g. "y" for a case whose
+    gravity points along -y).
     The title is ``title``, else ``"phi = 0 surfaces"`` plus ``t = time`` when given.  A
     solid whose phi does not change sign is left out (noted in the title).  Returns the path.
     """
@@ -962,7 +965,9 @@ def save_surface_png(
     ax.set_xlabel("$x$")
     ax.set_ylabel("$y$")
     ax.set_zlabel("$z$")
-    ax.view_init(elev=elev, azim=azim)
+    if vertical not in ("x", "y", "z"):
+        raise ValueError(f"vertical must be 'x', 'y' or 'z', got {vertical!r}")
+    ax.view_init(elev=elev, azim=azim, vertical_axis=vertical)
     if title is None:
         title = f"$\\phi = {level:g}$ surfaces"
         if time is not None:
