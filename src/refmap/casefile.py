@@ -2146,7 +2146,7 @@ def _scenarios():
 def show_scenario(name: str, n: int | None = None) -> str:
     """The built-in scenario ``name`` (at its default resolution, or ``n``) as a case file."""
     sc = _scenarios()
-    case = sc.get_case(name) if n is None else sc.get_case(name, n)
+    case = sc.get_case(name, n)  # n None: the scenario's own default (32 in 3D, 128 in 2D)
     desc = sc.DESCRIPTIONS.get(name, "")
     header = (
         f"refmap case file: the built-in scenario {name!r}"
