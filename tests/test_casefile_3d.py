@@ -180,9 +180,7 @@ def test_3d_scenarios_print_as_case_files_that_load_back(name):
     3D, the grid `refmap run NAME` uses (it once printed the 2D default, 128^3)."""
     from refmap import scenarios
 
-    # (at 16 cells the settling spheres' bottom row lies on the second node row above the
-    # floor, which a case file refuses: "within two cells of a non-periodic edge")
-    for n in (None, 24 if name == "spheres_settle" else 16):
+    for n in (None, 16):
         case = scenarios.get_case(name, n)
         assert case.grid.nx == (32 if n is None else n)
         text = show_scenario(name, n)

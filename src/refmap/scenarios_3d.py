@@ -144,14 +144,15 @@ def spheres_collide(n: int = 32) -> Case:
     )
 
 
-# (centre, radius, density) of the settling spheres: three near the floor, not quite
-# touching it or each other, and a fourth, heavier, above the hollow between them (over
-# the centre of the circle through the three centres, -0.03, -0.07 in x, z)
+# (centre, radius, density) of the settling spheres: three a little above the floor (at
+# least two node rows clear of it from 16 cells on, as case files require), not touching
+# each other, and a fourth, heavier, above the hollow between them (over the centre of
+# the circle through the three centres, -0.03, -0.07 in x, z)
 SETTLE_SPHERES = (
-    ((-0.45, -0.55, -0.3), 0.32, 2.0),
-    ((0.35, -0.6, -0.35), 0.3, 1.8),
-    ((0.0, -0.55, 0.4), 0.3, 1.6),
-    ((-0.03, 0.0, -0.07), 0.28, 3.0),
+    ((-0.45, -0.42, -0.3), 0.32, 2.0),
+    ((0.35, -0.45, -0.35), 0.3, 1.8),
+    ((0.0, -0.42, 0.4), 0.3, 1.6),
+    ((-0.03, 0.1, -0.07), 0.28, 3.0),
 )
 
 
