@@ -165,7 +165,7 @@ def test_contact_table_round_trips_and_reaches_the_model():
 def _check_round_trip(name, tmp_path):
     sc = _scenarios()
     for n in (None, 40):
-        case = sc.get_case(name) if n is None else sc.get_case(name, n)
+        case = sc.get_case(name, n)  # n None: the scenario's own default, as `refmap show`
         text = show_scenario(name, n)
         assert text.startswith("# refmap case file")
         back = case_from_dict(tomllib.loads(text)).case
