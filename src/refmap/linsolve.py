@@ -245,6 +245,13 @@ class SeparableSolver:
                 f"SeparableSolver needs one kind per axis ({self.ndim}), got {self.kinds!r}"
             )
 
+    @classmethod
+    def on_grid(cls, grid, kinds):
+        """The solver for a :class:`refmap.grid.Grid` or :class:`~refmap.grid.Grid3D`'s
+        nodes (one kind per axis)."""
+        extra = {"nz": grid.nz, "dz": grid.dz} if grid.ndim == 3 else {}
+        return cls(grid.nx, grid.ny, grid.dx, grid.dy, kinds, **extra)
+
     @property
     def ndim(self) -> int:
         return 3 if self.nz else 2

@@ -104,7 +104,7 @@ def check_boundary(boundary, grid) -> None:
             if un == 0.0:
                 continue
             flux = _face_values(name, (seg,), grid, 0.0, waveform=False).sum()
-            flux *= (grid.dy if axis == 0 else grid.dx) if grid.ndim == 2 else _face_area(grid, axis)
+            flux *= _face_area(grid, axis)
             sign = -1.0 if _HIGH[name] else 1.0  # inflow positive
             key = (seg.ramp, seg.omega)
             groups[key] = groups.get(key, 0.0) + sign * float(flux)
@@ -144,10 +144,7 @@ def _face_values(name, edge, grid, t, waveform=True):
     of the face, 3D) at time t."""
     axis = _AXIS[name]
     if grid.ndim == 2:
-        xn, yn = grid.axes("node")
-        s_along = (
-            (yn - grid.ay) / (grid.by - grid.ay) if axis == 0 else (xn - grid.ax) / (grid.bx - grid.ax)
-        )
+        (s_along,) = _along(name, grid)
         out = jnp.zeros(s_along.shape)
         for seg in edge:
             if seg.kind not in ("wall", "velocity"):
@@ -185,11 +182,7 @@ def _outflow_nodes(name, edge, grid):
         s1, s2 = _along(name, grid)
         shape = np.broadcast_shapes(s1.shape, s2.shape)
         return np.full(shape, any(seg.kind == "outflow" for seg in edge))
-    axis = _AXIS[name]
-    xn, yn = grid.axes("node")
-    s_along = np.asarray(
-        (yn - grid.ay) / (grid.by - grid.ay) if axis == 0 else (xn - grid.ax) / (grid.bx - grid.ax)
-    )
+    (s_along,) = _along(name, grid)
     out = np.zeros(s_along.shape, dtype=bool)
     for seg in edge:
         if seg.kind == "outflow":
@@ -262,10 +255,7 @@ class Projection:
             "periodic" if p else (kind(lo), kind(hi))
             for p, (lo, hi) in zip(self.periodic, AXIS_FACES[:nd], strict=True)
         )
-        if nd == 2:
-            self.fast = SeparableSolver(g.nx, g.ny, g.dx, g.dy, kinds)
-        else:
-            self.fast = SeparableSolver(g.nx, g.ny, g.dx, g.dy, kinds, nz=g.nz, dz=g.dz)
+        self.fast = SeparableSolver.on_grid(g, kinds)
         self.fast_definite = any(k != "periodic" and "odd" in k for k in kinds)
 
     # ------------------------------------------------------------------ operators

@@ -114,10 +114,8 @@ class ImplicitViscosity:
         self.rtol = float(rtol)
         self.maxiter = int(maxiter)
         self.ndim = getattr(model, "ndim", 2)
-        extra = {} if self.ndim == 2 else {"nz": g.nz, "dz": g.dz}
         self.fast = tuple(
-            SeparableSolver(g.nx, g.ny, g.dx, g.dy, axis_kinds(model.boundary, c), **extra)
-            for c in range(self.ndim)
+            SeparableSolver.on_grid(g, axis_kinds(model.boundary, c)) for c in range(self.ndim)
         )
         # the corner-stress operator is symmetric on periodic axes; at edges the ghost
         # reflections enter its u-v coupling asymmetrically (tested), so BiCGSTAB there
