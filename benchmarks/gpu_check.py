@@ -8,13 +8,24 @@
    docs/method.md).
 2. **Throughput.** The rotor step at each of ``--sizes`` (fixed dt, full smoothing sweeps)
    and the 100-disc ``suspension`` at each of ``--suspension``: compile time, ms per step,
-   Mcell-updates/s.
+   Mcell-updates/s, the step's own dt and the wall time per unit of simulated time.
+3. **Options that the CPU tuned** (each optional): ``--band-compare`` times the rotor with
+   the band sweeps on tiles and on the full grid (``Numerics.band_sweeps``; the "auto"
+   rule's threshold was measured on a CPU); ``--incompressible`` times the rotor with the
+   incompressible fluid (projection with the fast preconditioner: larger dt, a linear
+   solve per step); ``--sizes-3d`` times the 3D ``sphere_relax``.
+
+Each section is guarded: an error is printed and recorded and the next section runs, and
+``--json`` is rewritten after every row, so a run stopped at a time limit keeps what it
+measured.
 
 Everything is float64.  On a machine without a GPU both runs use the CPU (parity then
 checks determinism).  Usage::
 
     python benchmarks/gpu_check.py                                   # defaults below
     python benchmarks/gpu_check.py --sizes 128 --parity-n 32 --parity-steps 50   # a CPU try
+    python benchmarks/gpu_check.py --sizes 64 --parity-n 32 --parity-steps 10 \
+        --band-compare 64 --incompressible 64 --sizes-3d 16 --suspension 64 --steps 3
 
 ``benchmarks/gpu.sh`` wraps it for the device machine (wheels for packages its image lacks).
 """
@@ -81,34 +92,52 @@ def _full_sweeps(case):
                                          fixed_smooth_sweeps=case.numerics.smooth_max_sweeps))
 
 
+def bandwidth(n=1 << 27, reps=5):
+    """Measured memory bandwidth of the default device: y = 1.0001 x over ``n`` float64
+    values (bytes read plus bytes written per second), the ceiling that a step which moves
+    B bytes per cell cannot beat."""
+    x = jax.numpy.ones(n)
+    fn = jax.jit(lambda a: a * 1.0001)
+    jax.block_until_ready(fn(x))
+    best = float("inf")
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(x))
+        best = min(best, time.perf_counter() - t0)
+    return 16.0 * n / best
+
+
+def _with(case, **numerics):
+    from dataclasses import replace
+
+    return case.replace(numerics=replace(case.numerics, **numerics))
+
+
 def _throughput(case, steps):
     model, params = _full_sweeps(case).build()
     state = jax.jit(model.initial_state)(params)
     dt = model.time_step(state, params)[0]
     fn = jax.jit(lambda s: model.run_steps(s, params, steps, dt=dt))
     comp, best = _timed(fn, state)
-    cells = model.grid.nx * model.grid.ny
-    return comp, best / steps * 1e3, cells * steps / best / 1e6
+    cells = int(np.prod(model.grid.shape()))
+    ms = best / steps * 1e3
+    return dict(compile_s=comp, ms_per_step=ms, mcell_updates_s=cells * steps / best / 1e6,
+                dt=float(dt), s_per_unit_time=ms * 1e-3 / float(dt))
 
 
-def rotor_rows(sizes, steps):
-    rows = []
-    for n in sizes:
-        comp, ms, mcups = _throughput(get_case("rotor", n), steps)
-        rows.append(dict(case="rotor", n=n, compile_s=comp, ms_per_step=ms, mcell_updates_s=mcups))
-        print(f"rotor {n:5d}^2  compile {comp:7.1f} s  {ms:9.3f} ms/step  {mcups:9.1f} Mcell-updates/s",
-              flush=True)
-    return rows
-
-
-def suspension_rows(sizes, steps):
-    rows = []
-    for n in sizes:
-        comp, ms, mcups = _throughput(get_case("suspension", n), steps)
-        rows.append(dict(case="suspension (100 discs)", n=n, compile_s=comp, ms_per_step=ms,
-                         mcell_updates_s=mcups))
-        print(f"suspension (100 discs) {n:5d}^2  compile {comp:7.1f} s  {ms:9.3f} ms/step", flush=True)
-    return rows
+def _row(label, n, case, steps, rows, report):
+    """Time one case, print and record the row (or the error) and rewrite the JSON."""
+    nd = 3 if label.endswith("3D") else 2
+    try:
+        r = dict(case=label, n=n, **_throughput(case, steps))
+        print(f"{label:34s} {n:5d}^{nd}  compile {r['compile_s']:6.1f} s  {r['ms_per_step']:9.3f} ms/step"
+              f"  {r['mcell_updates_s']:8.1f} Mcell-updates/s  dt {r['dt']:.2e}"
+              f"  {r['s_per_unit_time']:8.2f} s per unit time", flush=True)
+    except Exception as e:  # noqa: BLE001  (record it, go on with the next row)
+        r = dict(case=label, n=n, error=f"{type(e).__name__}: {e}")
+        print(f"{label:34s} {n:5d}^{nd}  FAILED {r['error'][:300]}", flush=True)
+    rows.append(r)
+    report()
 
 
 def main(argv=None):
@@ -119,21 +148,55 @@ def main(argv=None):
     ap.add_argument("--sizes", default="512,1024,2048,4096")
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--suspension", default="", help="grid sizes for the 100-disc suspension (e.g. 300)")
-    ap.add_argument("--json", default=None, help="also write the figures here")
+    ap.add_argument("--band-compare", default="", help="rotor sizes timed with band_sweeps 'band' and 'grid'")
+    ap.add_argument("--incompressible", default="", help="rotor sizes timed with the incompressible fluid")
+    ap.add_argument("--sizes-3d", default="", help="cube sizes of the 3D sphere_relax (e.g. 64,128)")
+    ap.add_argument("--json", default=None, help="also write the figures here (rewritten after every row)")
     a = ap.parse_args(argv)
+
+    def sizes(text):
+        return [int(x) for x in text.split(",") if x]
+
     print("JAX", jax.__version__, "devices:", jax.devices(), flush=True)
-    ok, prow = parity(a.parity_n, a.parity_steps, a.tol)
-    for r in prow:
-        print(f"parity {r['case']:10s} {r['field']:6s} rel. diff {r['rel_diff']:.2e}", flush=True)
-    print("PARITY", "OK" if ok else "FAILED", f"(tol {a.tol:g})", flush=True)
-    rows = rotor_rows([int(x) for x in a.sizes.split(",") if x], a.steps)
-    if a.suspension:
-        rows += suspension_rows([int(x) for x in a.suspension.split(",")], a.steps)
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump(dict(jax=jax.__version__, devices=[str(d) for d in jax.devices()],
-                           parity_ok=ok, parity=prow, throughput=rows), f, indent=1)
-    return 0 if ok else 1
+    out = dict(jax=jax.__version__, devices=[str(d) for d in jax.devices()], parity_ok=None,
+               parity=[], throughput=[])
+
+    def report():
+        if a.json:
+            with open(a.json, "w") as f:
+                json.dump(out, f, indent=1)
+
+    try:
+        ok, out["parity"] = parity(a.parity_n, a.parity_steps, a.tol)
+        for r in out["parity"]:
+            print(f"parity {r['case']:10s} {r['field']:6s} rel. diff {r['rel_diff']:.2e}", flush=True)
+        print("PARITY", "OK" if ok else "FAILED", f"(tol {a.tol:g})", flush=True)
+    except Exception as e:  # noqa: BLE001
+        ok = False
+        out["parity_error"] = f"{type(e).__name__}: {e}"
+        print("PARITY FAILED to run:", out["parity_error"][:500], flush=True)
+    out["parity_ok"] = ok
+    try:
+        out["bandwidth_GB_s"] = bandwidth() / 1e9
+        print(f"memory bandwidth (scale of 2^27 float64): {out['bandwidth_GB_s']:.0f} GB/s", flush=True)
+    except Exception as e:  # noqa: BLE001
+        print("bandwidth measurement failed:", e, flush=True)
+    report()
+    rows = out["throughput"]
+    for n in sizes(a.sizes):
+        _row("rotor", n, get_case("rotor", n), a.steps, rows, report)
+    for n in sizes(a.suspension):
+        _row("suspension (100 discs)", n, get_case("suspension", n), a.steps, rows, report)
+    for n in sizes(a.band_compare):
+        for mode in ("band", "grid"):
+            _row(f"rotor, band_sweeps={mode}", n, _with(get_case("rotor", n), band_sweeps=mode),
+                 a.steps, rows, report)
+    for n in sizes(a.incompressible):
+        case = _with(get_case("rotor", n), fluid_model="incompressible", pressure_preconditioner="fast")
+        _row("rotor, incompressible (fast)", n, case, a.steps, rows, report)
+    for n in sizes(a.sizes_3d):
+        _row("sphere_relax 3D", n, get_case("sphere_relax", n), a.steps, rows, report)
+    return 0 if ok and not any("error" in r for r in rows) else 1
 
 
 if __name__ == "__main__":
