@@ -3,6 +3,7 @@
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -145,11 +146,137 @@ def test_auto_tiles_only_a_band_that_covers_little_of_the_grid():
     }
     assert caps["grid"] is None
     assert caps["auto"] == caps["band"] is not None
-    assert caps["auto"] <= BAND_TILE_FRACTION * 16 * 16
+    assert caps["auto"] <= BAND_TILE_FRACTION[2] * 16 * 16
     rotor = {}
     for m in ("auto", "band"):
         case = get_case("rotor", 64)
         model, _ = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps=m)).build()
         rotor[m] = model.band_capacity
     assert rotor["auto"] is None
-    assert rotor["band"] > BAND_TILE_FRACTION * 4 * 4
+    assert rotor["band"] > BAND_TILE_FRACTION[2] * 4 * 4
+
+
+# ------------------------------------------------------------------------------- 3D
+
+
+def _fields_3d(shape):
+    from refmap.grid import Grid3D
+
+    g = Grid3D(*shape, -1.0, 1.0, -1.1, 1.1, -0.95, 0.95)
+    X, Y, Z = g.mesh()
+    # an ellipsoid (phi not a distance) and a small sphere cut by the box's far corner
+    phis = np.stack([
+        np.sqrt((X - 0.1) ** 2 / 1.2 + (Y + 0.05) ** 2 + (Z - 0.02) ** 2) - 0.5,
+        np.sqrt((X - 0.8) ** 2 + (Y - 0.9) ** 2 + (Z + 0.7) ** 2) - 0.35,
+    ])
+    one = np.stack([np.sin(2 * X + 1) * np.cos(1.5 * Y) * np.exp(0.3 * Z), X * Y - Z])
+    f = np.where(phis[:, None] < 0, np.stack([one, one + 0.5]), 0.0)
+    return g, phis, f
+
+
+@pytest.mark.parametrize(
+    "shape, periodic, smooth",
+    [
+        ((30, 34, 26), (False, False, False), "adaptive"),  # padded tiles at the far faces
+        ((30, 34, 26), (False, False, False), "fixed"),
+        ((32, 36, 30), (True, False, True), "none"),  # tiles 8 x 8 x 6 (or 10) on the wraps
+        ((32, 36, 30), (False, True, False), "adaptive"),
+    ],
+)
+def test_tiles_equal_full_grid_sweeps_3d(shape, periodic, smooth):
+    """The 3D tiles (8 x 8 x 8 by default) give the full-grid sweeps' result to round-off;
+    a band that does not fit falls back on the full grid (bitwise); nothing outside the
+    bands changes."""
+    from refmap.extrapolation import TILE_TARGET
+
+    g, phis, f = _fields_3d(shape)
+    band = 6 * g.h
+    tile = narrowband.tile_shape(shape, periodic, target=TILE_TARGET[3])
+    assert tile is not None and all(6 <= t <= 10 for t in tile)
+    counts = np.asarray(band_tiles(phis, band, tile, periodic))
+    assert counts.max() < np.prod(narrowband.n_tiles(shape, tile))  # some tiles not listed
+    sm = SMOOTH[smooth]
+
+    def run(capacity):
+        return np.asarray(
+            jax.jit(
+                lambda f, p: extend(f, p, g.dx, g.dy, band, capacity, periodic=periodic,
+                                    smooth=sm, tile=tile, dz=g.dz)
+            )(f, phis)
+        )
+
+    dense = run(None)
+    tiles = run(int(counts.max()) + 1)
+    assert np.abs(tiles - dense).max() <= 1e-14 * np.abs(dense).max()
+    assert np.any(tiles != f)  # the sweeps did change the bands
+    np.testing.assert_array_equal(run(int(counts.max()) - 1), dense)
+    outside = np.broadcast_to((phis > band)[:, None], f.shape)
+    np.testing.assert_array_equal(tiles[outside], f[outside])
+
+
+def test_tile_layout_3d_neighbours_and_scatter():
+    """The 3D tile list: slots in index order, each face neighbour found (wrapping on a
+    periodic axis, absent beyond a wall), and gather then scatter is the identity on the
+    listed tiles."""
+    shape, tile, periodic = (12, 8, 9), (4, 4, 3), (True, False, False)
+    mask = np.zeros(shape, dtype=bool)
+    mask[0, 0, 0] = True  # tile (0, 0, 0)
+    mask[11, 5, 8] = True  # tile (2, 1, 2)
+    mask[9, 1, 1] = True  # tile (2, 0, 0): the x- periodic neighbour of (0, 0, 0)
+    t = narrowband.build(jnp.asarray(mask), 4, tile, periodic)
+    assert int(t.count) == 3
+    pos = np.stack([np.asarray(p) for p in t.pos])[:, :3].T.tolist()
+    assert pos == [[0, 0, 0], [2, 0, 0], [2, 1, 2]]
+    listed, ptr = np.asarray(t.listed), np.asarray(t.ptr)
+    # (0,0,0): x- wraps to (2,0,0) at slot 1; its x+ neighbour (1,0,0) is not listed
+    assert listed[0, 0] and ptr[0, 0] == 1 and not listed[1, 0]
+    # (2,0,0): x+ wraps to (0,0,0) at slot 0; y- and z- lie beyond the walls
+    assert listed[1, 1] and ptr[1, 1] == 0 and not listed[2, 1] and not listed[4, 1]
+    assert not np.any(listed[:, 3])  # the empty slot is nobody's neighbour and has none
+    a = jnp.asarray(np.random.default_rng(0).standard_normal((2,) + shape))
+    G = narrowband.gather(a, t, tile, periodic, 0.0, halo=0)
+    assert G.shape == (2, 4) + tile
+    np.testing.assert_array_equal(np.asarray(G[:, 2]), np.asarray(a[:, 8:12, 4:8, 6:9]))
+    idx = narrowband.node_index(t, tile, shape)
+    back = narrowband.scatter(jnp.zeros_like(a), idx, G)
+    listed_nodes = np.zeros(shape, dtype=bool)
+    for i, j, k in pos:
+        listed_nodes[4 * i:4 * i + 4, 4 * j:4 * j + 4, 3 * k:3 * k + 3] = True
+    np.testing.assert_array_equal(np.asarray(back)[:, listed_nodes], np.asarray(a)[:, listed_nodes])
+    assert not np.any(np.asarray(back)[:, ~listed_nodes])
+
+
+def test_model_band_tiles_3d_equal_grid_sweeps():
+    """A 3D model with band_sweeps = "band" (two spheres thrown at each other, one sheared,
+    on 8^3 tiles) runs the full-grid sweeps' steps to round-off; "auto" tiles a band that
+    lists little of the grid and not one that lists all of it."""
+    from refmap.boundary import Boundary
+    from refmap.geometry import Sphere
+    from refmap.grid import Grid3D
+    from refmap.materials import NeoHookean
+    from refmap.model import Model, Solid
+
+    law = NeoHookean(G=5.0, kappa=5.0, dim=3)
+    A = ((1.0, 0.2, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    solids = (
+        Solid(Sphere(center=(-0.55, 0.1, 0.0), radius=0.3), law, strain=A,
+              strain_center=(-0.55, 0.1, 0.0), velocity=(0.3, 0.0, 0.0)),
+        Solid(Sphere(center=(0.55, -0.1, 0.15), radius=0.3), law, velocity=(-0.3, 0.0, 0.0), name="b"),
+    )
+    walls = {f: "wall" for f in ("left", "right", "bottom", "top", "back", "front")}
+    g = Grid3D(32, 32, 32, -1.5, 1.5, -1.5, 1.5, -1.5, 1.5)
+    out = {}
+    for mode in ("grid", "band"):
+        model = Model(g, solids, Boundary(**walls), Numerics(band_sweeps=mode))
+        if mode == "band":
+            assert model.band_tile == (8, 8, 8) and model.band_capacity is not None
+        p = model.default_params()
+        s = model.initial_state(p)
+        out[mode] = jax.jit(lambda s, model=model, p=p: model.run_steps(s, p, 6))(s)
+    for k in ("v", "rho_f", "xi", "phi"):
+        a, b = np.asarray(getattr(out["grid"], k)), np.asarray(getattr(out["band"], k))
+        assert np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0), k
+    auto = Model(Grid3D(48, 48, 48, -1.5, 1.5, -1.5, 1.5, -1.5, 1.5), solids, Boundary(**walls))
+    assert auto.band_capacity is not None  # 2 x 27 + 8 of 216 tiles
+    case = get_case("sphere_relax", 32)  # its band lists all 64 tiles: full grid
+    assert case.build()[0].band_capacity is None

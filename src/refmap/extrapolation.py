@@ -27,8 +27,8 @@ Two or three dimensions, as in :mod:`refmap.levelset`: the keyword ``dz=`` makes
 components and the stencils six neighbours (x-, x+, y-, y+, z-, z+).  One code path: the
 stencils loop over the axes, and in 2D they perform the original arithmetic in the
 original order, so 2D results are bitwise unchanged (tested against a frozen copy).  The
-band-tile layout of :func:`extend` (``capacity``, :mod:`refmap.narrowband`) is 2D only;
-3D sweeps run on the full grid.
+band-tile layout of :func:`extend` (``capacity``, :mod:`refmap.narrowband`) works in both:
+squares of about 16 nodes a side in 2D, cubes of about 8 in 3D.
 
 Domain edges: without ``periodic`` nothing beyond the edge is known, so extrapolation and
 one-sided differences use in-domain nodes only, and a second difference across the edge is
@@ -578,8 +578,8 @@ def extend(
     any solid's band covers more than ``capacity`` tiles, this call falls back on the
     full-grid sweeps (same result, full cost).  A tuple of capacities is a ladder: the
     smallest one that holds every solid's band is used (the work is proportional to it),
-    the full grid when none does.  The tiles are 2D only: in 3D ``capacity`` and ``tile``
-    are ignored.
+    the full grid when none does.  The tiles are squares (cubes in 3D) of about
+    :data:`TILE_TARGET` nodes a side.
 
     ``window`` (3D): a static box size (one number of nodes per axis; the full length on a
     periodic axis).  Each solid's sweeps then run on a box of that size placed round its
@@ -589,15 +589,14 @@ def extend(
     is the same).  When a band does not fit (a body grown or deformed beyond it, a body
     across a periodic edge), the call falls back on the full grid.
     """
-    _, periodic = _dims(dx, dy, dz, periodic, "extend")
+    h, periodic = _dims(dx, dy, dz, periodic, "extend")
+    nd = len(h)
     f = jnp.asarray(f)
     phi = jnp.asarray(phi)
-    if dz is not None:
-        capacity = None  # 3D sweeps run on the full grid
     if iters is None:
         iters = default_sweeps(band, dx, dy, dz=dz)
     if tile is None and capacity is not None:
-        tile = narrowband.tile_shape(phi.shape[-2:], periodic)
+        tile = narrowband.tile_shape(phi.shape[-nd:], periodic, target=TILE_TARGET[nd])
 
     def dense(f, phi):
         def one(f_k, phi_k):
@@ -627,9 +626,9 @@ def extend(
         return _extend_window(f, phi, band, tuple(int(w) for w in window), dense, periodic)
     if capacity is None or tile is None or f.shape[0] == 0:
         return dense(f, phi)
-    ntx, nty = narrowband.n_tiles(phi.shape[-2:], tile)
+    total = math.prod(narrowband.n_tiles(phi.shape[-nd:], tile))
     ladder = capacity if isinstance(capacity, (tuple, list)) else (capacity,)
-    ladder = sorted({int(min(c, ntx * nty)) for c in ladder})
+    ladder = sorted({int(min(c, total)) for c in ladder})
 
     # the tiles holding a node to update, found once for the choice of layout and the list
     flags = jax.vmap(lambda p: narrowband.tile_flags(_unknown(p, band, periodic), tile))(phi)
@@ -638,19 +637,24 @@ def extend(
         def run(f, phi):
             return jax.vmap(
                 lambda f_k, phi_k, fl_k: _extend_tiles(
-                    f_k, phi_k, fl_k, dx, dy, band, cap, tile, iters, periodic, smooth
+                    f_k, phi_k, fl_k, h, band, cap, tile, iters, periodic, smooth
                 )
             )(f, phi, flags)
 
         return run
 
-    most = jnp.max(jnp.sum(flags, axis=(-2, -1), dtype=jnp.int32))
+    most = jnp.max(jnp.sum(flags, axis=tuple(range(-nd, 0)), dtype=jnp.int32))
     if len(ladder) == 1:
         return lax.cond(most <= ladder[0], compact(ladder[0]), dense, f, phi)
     # the first capacity that holds the largest band; past the last one, the full grid
     level = jnp.sum(jnp.asarray(ladder, dtype=jnp.int32) < most, dtype=jnp.int32)
     return lax.switch(level, [compact(c) for c in ladder] + [dense], f, phi)
 
+
+#: default tile side of :func:`extend`'s band tiles, by grid dimension: 16 x 16 in 2D, 8 x 8 x 8
+#: in 3D (a 16^3 tile holds 4096 nodes, so a thin band round a small body lists too much of
+#: the grid; docs/benchmarks.md, "Band tiles in 3D")
+TILE_TARGET = {2: 16, 3: 8}
 
 #: nodes kept between a band and the edge of its window (:func:`extend`'s ``window``): the
 #: band's nodes then read only nodes inside (the normal of phi, the neighbours of the sweeps)
@@ -729,59 +733,64 @@ def _unknown(phi, band, periodic):
     return (phi <= band) & ~_gradient_valid(phi < 0, periodic)
 
 
-def band_tiles(phi, band, tile, periodic: Periodic = (False, False)):
-    """Number of tiles per solid that :func:`extend` lists (``phi`` (S, nx, ny))."""
+def band_tiles(phi, band, tile, periodic: Periodic | None = None):
+    """Number of tiles per solid that :func:`extend` lists (``phi`` (S, nx, ny[, nz]))."""
+    periodic = (False,) * len(tile) if periodic is None else tuple(periodic)
     return jax.vmap(
         lambda p: jnp.sum(narrowband.tile_flags(_unknown(p, band, periodic), tile), dtype=jnp.int32)
     )(phi)
 
 
-def _extend_tiles(f, phi, flags, dx, dy, band, capacity, tile, iters, periodic, smooth):
-    """:func:`extend` for one solid on its listed tiles (f (C, nx, ny), phi (nx, ny), the
-    flags (ntx, nty) of the tiles holding a node to update)."""
+def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smooth):
+    """:func:`extend` for one solid on its listed tiles (f (C, nx, ny[, nz]), phi (nx, ny[,
+    nz]), the flags (ntx, nty[, ntz]) of the tiles holding a node to update, ``h`` the
+    spacings)."""
     nbm = narrowband
+    nd = len(h)
     tiles = nbm.build_from_flags(flags, capacity, periodic)
     nb = nbm.Neighbours(tiles)
     never = jnp.int32(iters + 1)
-    slot = tiles.slot[:, None, None]
+    slot = tiles.slot.reshape((-1,) + (1,) * nd)
 
     # tiles with two ghost rows; everything the sweeps need is formed on them, the first
     # ghost row giving the fixed edge values next to tiles that are not listed
     P = nbm.gather(phi, tiles, tile, periodic, jnp.inf)  # beyond an edge: neither solid nor band
     F = nbm.gather(f, tiles, tile, periodic, 0.0)
     solid2, valid2 = P < 0, P <= band
-    solid1, valid1, f1 = (nbm.interior(a, 1) for a in (solid2, valid2, F))
-    gx1, gy1, gvalid1 = _solid_gradient_nb(
-        f1, nbm.stencil_neighbours(F), solid1, nbm.stencil_neighbours(solid2), (dx, dy)
+    solid1, valid1, f1 = (nbm.interior(a, 1, nd) for a in (solid2, valid2, F))
+    *g1, gvalid1 = _solid_gradient_nb(
+        f1, nbm.stencil_neighbours(F, nd), solid1, nbm.stencil_neighbours(solid2, nd), h
     )
     ag1 = jnp.where(gvalid1, 0, never).astype(jnp.int32)
     af1 = jnp.where(solid1, 0, never).astype(jnp.int32)
-    gx1, gy1 = (jnp.where(gvalid1, g, 0.0) for g in (gx1, gy1))
+    g1 = [jnp.where(gvalid1, g, 0.0) for g in g1]
     f1z = jnp.where(solid1, f1, 0.0)
 
     def inner(a):
-        return nbm.interior(a, 1)
+        return nbm.interior(a, 1, nd)
+
+    def halos(a):
+        return nbm.halos(a, nd)
 
     gvalid, solid, valid = inner(gvalid1), inner(solid1), inner(valid1)
     update_g = valid & ~gvalid & slot
     update_f = valid & ~solid & slot
-    normal = nbm.gather(unit_normal(phi, dx, dy, periodic), tiles, tile, periodic, 0.0, halo=0)
-    fixed_g = dict(
-        known=nbm.halos(gvalid1), arrival=nbm.halos(ag1), value=(nbm.halos(gx1), nbm.halos(gy1))
-    )
-    fixed_f = dict(known=nbm.halos(solid1), arrival=nbm.halos(af1), value=nbm.halos(f1z))
+    dz = {"dz": h[2]} if nd == 3 else {}
+    normal = nbm.gather(unit_normal(phi, h[0], h[1], periodic, **dz), tiles, tile, periodic, 0.0, halo=0)
+    fixed_g = dict(known=halos(gvalid1), arrival=halos(ag1), value=tuple(halos(g) for g in g1))
+    fixed_f = dict(known=halos(solid1), arrival=halos(af1), value=halos(f1z))
     f_ext, done = _extrapolate_core(
-        (inner(gx1), inner(gy1), inner(f1z)),
+        tuple(inner(g) for g in g1) + (inner(f1z),),
         gvalid,
         solid,
         update_g,
         update_f,
-        (normal[0], normal[1]),
+        tuple(normal[a] for a in range(nd)),
         nb,
         fixed_g,
         fixed_f,
         iters,
-        (dx, dy),
+        h,
     )
     f_t = jnp.where(done, f_ext, inner(f1))
     index = nbm.node_index(tiles, tile, phi.shape)
@@ -789,36 +798,36 @@ def _extend_tiles(f, phi, flags, dx, dy, band, capacity, tile, iters, periodic, 
         return nbm.scatter(f, index, f_t)
 
     fixed_sweeps = smooth.get("fixed_sweeps")
-    h = jnp.minimum(dx, dy)
+    hmin = jnp.minimum(h[0], h[1])
+    if nd == 3:
+        hmin = jnp.minimum(hmin, h[2])
     limits = None
     if fixed_sweeps is None:
         # the interior's second differences (phi < -2h), read from the extrapolated field
         f = nbm.scatter(f, index, f_t)
         dnb = _DenseNeighbours(periodic)
-        vxm, vxp, vym, vyp = dnb(phi <= band, False)
         limits = _interior_limits(
             f,
-            phi < -2 * h,
-            (vxm & vxp, vym & vyp),
-            (dx, dy),
+            phi < -2 * hmin,
+            tuple(vm & vp for vm, vp in _pairs(dnb(phi <= band, False))),
+            h,
             dnb,
             smooth.get("ratio", 0.25),
             smooth.get("atol", 1e-3),
         )
-    vm, vp, wm, wp = nbm.stencil_neighbours(valid1)
     f_s = _smooth_core(
         f_t,
         update_f,
-        (vm & vp, wm & wp),
+        tuple(vm & vp for vm, vp in _pairs(nbm.stencil_neighbours(valid1, nd))),
         limits,
         nb,
-        nbm.halos(f1),
-        smooth.get("coef", 0.025) * h * h,
-        (dx, dy),
+        halos(f1),
+        smooth.get("coef", 0.025) * hmin * hmin,
+        h,
         smooth.get("max_sweeps", 80),
         fixed_sweeps,
         False,
-        grid_ndim=3,
+        grid_ndim=nd + 1,
     )
     return nbm.scatter(f, index, f_s)
 

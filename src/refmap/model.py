@@ -53,15 +53,19 @@ from refmap.projection import Projection
 from refmap.state import FluidParams, Numerics, Params, State
 from refmap.viscosity import ImplicitViscosity
 
-# band_sweeps = "auto": sweep the band on tiles only when its listed tiles are at most this
-# fraction of the grid's; a tile sweep costs 1.8-2.5 times a full-grid sweep per node
-# (rotor, 128^2-512^2, docs/benchmarks.md), so the break-even lies at 0.40-0.57
-BAND_TILE_FRACTION = 0.35
+# band_sweeps = "auto": sweep the band on tiles only when its listed tiles (the capacity) are
+# at most this fraction of the grid's, by grid dimension.  2D: a tile sweep cost 1.8-2.5
+# times a full-grid sweep per node (rotor, 128^2-512^2, docs/benchmarks.md), so the
+# break-even lay at 0.40-0.57.  3D (8^3 tiles, one core): the band operator on tiles beat
+# the full grid 2.6x with a capacity of 70 % of the tiles (sphere_relax 48^3) and lost
+# (0.89x) at 100 % (spheres_settle 32^3): docs/benchmarks.md, "Band tiles in 3D"
+BAND_TILE_FRACTION = {2: 0.35, 3: 0.75}
 # a first, tighter band capacity (this times the tiles at t = 0, plus 8) tried before
 # Numerics.band_capacity's: the band work is proportional to the capacity
 BAND_TIGHT = 1.25
-# 3D: sweep each band in a box (Model._initial_band_window) only when the box is at most
-# this fraction of the grid (the box's cut and write-back cost a little)
+# 3D, where the band is not tiled: sweep each band in a box (Model._initial_band_window)
+# only when the box is at most this fraction of the grid (the box's cut and write-back cost
+# a little)
 BAND_WINDOW_FRACTION = 0.6
 # nodes added to the band box's extent at t = 0 for the window's size (the window follows
 # the body; the slack is for its deformation, beyond which the step sweeps the full grid)
@@ -291,27 +295,35 @@ class Model:
         None (full-grid sweeps) with ``band_sweeps = "grid"``, without solids, when the
         grid cannot be tiled (:func:`refmap.narrowband.tile_shape`), or with
         ``band_sweeps = "auto"`` when that is more than ``BAND_TILE_FRACTION`` of the
-        grid's tiles (the full-grid sweeps are then the cheaper).  A band that outgrows
-        it makes the step fall back on the full-grid sweeps (same result, full cost).  A
-        tighter capacity, ``BAND_TIGHT`` times those tiles plus 8, is tried first."""
+        grid's tiles for the grid's dimension (the full-grid sweeps are then the cheaper).
+        A band that outgrows it makes the step fall back on the full-grid sweeps (same
+        result, full cost).  A tighter capacity, ``BAND_TIGHT`` times those tiles plus 8,
+        is tried first.  Tiles are squares of about 16 nodes a side in 2D and cubes of
+        about 8 in 3D (:data:`refmap.extrapolation.TILE_TARGET`); a 3D band that is not
+        tiled is swept in a box round it where that pays (:meth:`_initial_band_window`)."""
         n = self.numerics
         self._band_tight = None
         self.band_window = None
-        if self.ndim == 3:  # the tile layout is 2D: 3D sweeps run on a box round each band
-            self.band_tile = None
-            self.band_window = self._initial_band_window()
+        nd = self.ndim
+        self.band_tile = narrowband.tile_shape(
+            self.grid.shape(), self.bc.periodic, target=extrapolation.TILE_TARGET[nd]
+        )
+        if n.band_sweeps == "grid" or not self.solids:
             return None
-        self.band_tile = narrowband.tile_shape(self.grid.shape(), self.bc.periodic)
-        if n.band_sweeps == "grid" or not self.solids or self.band_tile is None:
-            return None
-        shift = n.advected_band * self.h
-        with jax.ensure_compile_time_eval():
-            phi = jnp.stack([jnp.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)])
-            counts = np.asarray(extrapolation.band_tiles(
-                phi - shift, n.band * self.h - shift, self.band_tile, self.bc.periodic))
-        ntx, nty = narrowband.n_tiles(self.grid.shape(), self.band_tile)
-        capacity = min(int(math.ceil(n.band_capacity * counts.max())) + 8, ntx * nty)
-        if n.band_sweeps == "auto" and capacity > BAND_TILE_FRACTION * ntx * nty:
+        capacity = None
+        if self.band_tile is not None:
+            shift = n.advected_band * self.h
+            with jax.ensure_compile_time_eval():
+                phi = jnp.stack([jnp.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)])
+                counts = np.asarray(extrapolation.band_tiles(
+                    phi - shift, n.band * self.h - shift, self.band_tile, self.bc.periodic))
+            total = math.prod(narrowband.n_tiles(self.grid.shape(), self.band_tile))
+            capacity = min(int(math.ceil(n.band_capacity * counts.max())) + 8, total)
+            if n.band_sweeps == "auto" and capacity > BAND_TILE_FRACTION[nd] * total:
+                capacity = None
+        if capacity is None:
+            if nd == 3:  # a box round each band, where it is small enough
+                self.band_window = self._initial_band_window()
             return None
         self._band_tight = min(int(math.ceil(BAND_TIGHT * counts.max())) + 8, capacity)
         return capacity

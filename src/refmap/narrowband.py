@@ -3,7 +3,8 @@
 The band work of a solid (extrapolating its reference map, smoothing the extrapolated
 values) updates only the nodes near its interface: a few per cent of the grid for a large
 body, far less for a small one.  Sweeping the whole grid for them moves every field through
-memory once per sweep.  Here the grid is cut into tiles of ``tx x ty`` nodes (about 16 x 16),
+memory once per sweep.  Here the grid is cut into tiles of ``tx x ty`` nodes (about 16 x 16;
+``tx x ty x tz``, about 8 x 8 x 8, in 3D),
 the tiles holding at least one node to update are gathered once into a list of static
 length ``capacity`` (JAX needs static shapes), and the sweeps run on the list: a dense
 stencil inside each tile, the tile's edge rows read from its listed neighbour tiles, or,
@@ -12,8 +13,9 @@ once.  Gathering whole tiles keeps the sweeps vectorised: on a CPU a gather of s
 nodes costs about 15 times a stencil update of one node, which ate the gain of an earlier
 list of single band nodes (docs/benchmarks.md).
 
-Layout: a tile array is ``(..., capacity, tx, ty)``; :class:`Tiles` says which tile each
-slot holds and where its four neighbour tiles (x-, x+, y-, y+) are.  Slots past ``count``
+Layout: a tile array is ``(..., capacity, tx, ty)`` (``tx, ty, tz`` on a 3D grid: the module
+works on the last ``len(tile)`` axes); :class:`Tiles` says which tile each slot holds and
+where its ``2 d`` face-neighbour tiles (x-, x+, y-, y+[, z-, z+]) are.  Slots past ``count``
 are empty: their masks must be False (callers AND them with ``slot``), they are nobody's
 neighbour, and their values are never written back.  A band of more than ``capacity``
 tiles does not fit (``count > capacity``): callers check and fall back on the full-grid
@@ -27,6 +29,7 @@ nodes beyond the edge, which hold the value a full-grid stencil assumes beyond a
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -35,182 +38,229 @@ from jax import lax
 
 from refmap.levelset import Periodic
 
-_OFFSETS = ((-1, 0), (1, 0), (0, -1), (0, 1))  # x-, x+, y-, y+
 HALO = 2  # ghost rows gathered round each tile (a solid-only gradient on its edge row)
+
+
+def _offsets(nd: int):
+    """The unit offsets to the ``2 nd`` face neighbours, order (x-, x+, y-, y+[, z-, z+])."""
+    out = []
+    for a in range(nd):
+        for s in (-1, 1):
+            e = [0] * nd
+            e[a] = s
+            out.append(tuple(e))
+    return tuple(out)
 
 
 def _axis_tile(n: int, periodic: bool, target: int) -> int | None:
     if not periodic:
         return min(target, n)
-    sizes = [t for t in range(8, 33) if n % t == 0]
+    lo, hi = max(2, target // 2), 2 * target
+    sizes = [t for t in range(lo, hi + 1) if n % t == 0]
     if not sizes:
-        return n if n <= 32 else None
+        return n if n <= hi else None
     return min(sizes, key=lambda t: (abs(t - target), t))
 
 
-def tile_shape(shape, periodic: Periodic = (False, False), target: int = 16):
-    """Tile size ``(tx, ty)`` for a grid: ``target`` along a non-periodic axis, the divisor
-    of the node count in 8..32 closest to it along a periodic one; None if a periodic axis
-    has no such divisor (and more than 32 nodes)."""
-    tx = _axis_tile(shape[0], periodic[0], target)
-    ty = _axis_tile(shape[1], periodic[1], target)
-    return None if tx is None or ty is None else (tx, ty)
+def tile_shape(shape, periodic: Periodic | None = None, target: int = 16):
+    """Tile size ``(tx, ty[, tz])`` for a grid: ``target`` along a non-periodic axis, the
+    divisor of the node count in ``target/2 .. 2 target`` closest to it along a periodic one;
+    None if a periodic axis has no such divisor (and more than ``2 target`` nodes)."""
+    periodic = (False,) * len(shape) if periodic is None else tuple(periodic)
+    t = tuple(_axis_tile(n, p, target) for n, p in zip(shape, periodic, strict=True))
+    return None if any(x is None for x in t) else t
 
 
 class Tiles(NamedTuple):
     """The listed tiles of a mask and their neighbours (static: ``tile``, ``periodic``)."""
 
-    ti: jax.Array  # (cap,) tile row of each slot (0 for an empty slot)
-    tj: jax.Array  # (cap,) tile column
+    pos: tuple  # per axis (cap,) the tile index of each slot along it (0 for an empty slot)
     slot: jax.Array  # (cap,) True where the slot holds a tile
-    listed: jax.Array  # (4, cap) the neighbour tile is itself in the list ...
-    ptr: jax.Array  # (4, cap) ... at this slot (0 where it is not)
+    listed: jax.Array  # (2 nd, cap) the neighbour tile is itself in the list ...
+    ptr: jax.Array  # (2 nd, cap) ... at this slot (0 where it is not)
     count: jax.Array  # () number of tiles holding a node of the mask (may exceed cap)
 
 
 def n_tiles(shape, tile):
-    return -(-shape[0] // tile[0]), -(-shape[1] // tile[1])
+    """Tiles per axis of a grid of ``shape`` nodes (the last tile may be partly outside)."""
+    return tuple(-(-n // t) for n, t in zip(shape, tile, strict=True))
 
 
 def tile_flags(mask, tile):
-    """(ntx, nty): which tiles hold a True node of ``mask`` (nx, ny)."""
-    ntx, nty = n_tiles(mask.shape, tile)
-    m = _pad_to(mask, (ntx * tile[0], nty * tile[1]), False)
-    return jnp.any(m.reshape(ntx, tile[0], nty, tile[1]), axis=(1, 3))
+    """(ntx, nty[, ntz]): which tiles hold a True node of ``mask`` (nx, ny[, nz])."""
+    nd = len(tile)
+    nt = n_tiles(mask.shape, tile)
+    m = _pad_to(mask, tuple(n * t for n, t in zip(nt, tile, strict=True)), False)
+    split = sum(((n, t) for n, t in zip(nt, tile, strict=True)), ())
+    return jnp.any(m.reshape(split), axis=tuple(range(1, 2 * nd, 2)))
 
 
 def _pad_to(a, shape, fill):
-    widths = [(0, 0, 0)] * (a.ndim - 2) + [
-        (0, shape[0] - a.shape[-2], 0),
-        (0, shape[1] - a.shape[-1], 0),
-    ]
+    """``a`` padded with ``fill`` at the high end of its last ``len(shape)`` axes."""
+    nd = len(shape)
+    lead = a.ndim - nd
+    widths = [(0, 0, 0)] * lead + [(0, s - a.shape[lead + i], 0) for i, s in enumerate(shape)]
     return lax.pad(a, jnp.asarray(fill, dtype=a.dtype), widths)
 
 
-def build(mask, capacity: int, tile, periodic: Periodic = (False, False)) -> Tiles:
-    """The tiles holding a True node of ``mask`` (nx, ny), in index order."""
+def build(mask, capacity: int, tile, periodic: Periodic | None = None) -> Tiles:
+    """The tiles holding a True node of ``mask`` (nx, ny[, nz]), in index order."""
     return build_from_flags(tile_flags(mask, tile), capacity, periodic)
 
 
-def build_from_flags(flags, capacity: int, periodic: Periodic = (False, False)) -> Tiles:
-    """:func:`build` from the tile flags (ntx, nty) of :func:`tile_flags`."""
-    ntx, nty = flags.shape
+def build_from_flags(flags, capacity: int, periodic: Periodic | None = None) -> Tiles:
+    """:func:`build` from the tile flags (ntx, nty[, ntz]) of :func:`tile_flags`."""
+    nt = flags.shape
+    nd = len(nt)
+    periodic = (False,) * nd if periodic is None else tuple(periodic)
+    stride = [math.prod(nt[a + 1:]) for a in range(nd)]
     m = flags.reshape(-1)
     count = jnp.sum(m, dtype=jnp.int32)
     k = jnp.nonzero(m, size=capacity, fill_value=0)[0].astype(jnp.int32)
     slot = jnp.arange(capacity, dtype=jnp.int32) < count
     rank = jnp.cumsum(m, dtype=jnp.int32) - 1
-    ti, tj = k // nty, k % nty
+    pos = tuple((k // stride[a]) % nt[a] for a in range(nd))
     listed, ptr = [], []
-    for di, dj in _OFFSETS:
-        ii, jj = ti + di, tj + dj
+    for off in _offsets(nd):
         ok = slot
-        if periodic[0]:
-            ii = jnp.mod(ii, ntx)
-        else:
-            ok = ok & (ii >= 0) & (ii < ntx)
-        if periodic[1]:
-            jj = jnp.mod(jj, nty)
-        else:
-            ok = ok & (jj >= 0) & (jj < nty)
-        flat = jnp.where(ok, ii * nty + jj, 0)
+        flat = 0
+        for a in range(nd):
+            i = pos[a] + off[a]
+            if periodic[a]:
+                i = jnp.mod(i, nt[a])
+            else:
+                ok = ok & (i >= 0) & (i < nt[a])
+            flat = flat * nt[a] + i
+        flat = jnp.where(ok, flat, 0)
         is_listed = ok & m[flat]
         listed.append(is_listed)
         ptr.append(jnp.where(is_listed, rank[flat], 0))
-    return Tiles(ti, tj, slot, jnp.stack(listed), jnp.stack(ptr), count)
+    return Tiles(pos, slot, jnp.stack(listed), jnp.stack(ptr), count)
 
 
 def gather(a, tiles: Tiles, tile, periodic: Periodic, fill, halo: int = HALO):
-    """The listed tiles of a node field ``a`` (..., nx, ny) with ``halo`` ghost rows:
-    (..., cap, tx + 2 halo, ty + 2 halo).  Beyond a non-periodic edge the value is ``fill``;
-    across a periodic one the axis wraps."""
-    tx, ty = tile
-    ntx, nty = n_tiles(a.shape[-2:], tile)
-    a = _pad_to(a, (ntx * tx, nty * ty), fill)
-    for axis, p in ((-2, periodic[0]), (-1, periodic[1])):
-        if p:
+    """The listed tiles of a node field ``a`` (..., nx, ny[, nz]) with ``halo`` ghost rows:
+    (..., cap, tx + 2 halo, ty + 2 halo[, tz + 2 halo]).  Beyond a non-periodic edge the
+    value is ``fill``; across a periodic one the axis wraps."""
+    nd = len(tile)
+    nt = n_tiles(a.shape[-nd:], tile)
+    a = _pad_to(a, tuple(n * t for n, t in zip(nt, tile, strict=True)), fill)
+    for i in range(nd):
+        axis = a.ndim - nd + i
+        if periodic[i]:
             a = jnp.concatenate(
                 [
-                    lax.slice_in_dim(a, a.shape[axis] - halo, a.shape[axis], axis=a.ndim + axis),
+                    lax.slice_in_dim(a, a.shape[axis] - halo, a.shape[axis], axis=axis),
                     a,
-                    lax.slice_in_dim(a, 0, halo, axis=a.ndim + axis),
+                    lax.slice_in_dim(a, 0, halo, axis=axis),
                 ],
                 axis=axis,
             )
         else:
             widths = [(0, 0, 0)] * a.ndim
-            widths[a.ndim + axis] = (halo, halo, 0)
+            widths[axis] = (halo, halo, 0)
             a = lax.pad(a, jnp.asarray(fill, dtype=a.dtype), widths)
-    lead = a.shape[:-2]
-    size = (tx + 2 * halo, ty + 2 * halo)
+    lead = a.shape[:-nd]
+    size = tuple(t + 2 * halo for t in tile)
 
-    def one(i, j):
-        start = (jnp.int32(0),) * len(lead) + (i * tx, j * ty)
+    def one(*p):
+        start = (jnp.int32(0),) * len(lead) + tuple(q * t for q, t in zip(p, tile, strict=True))
         return lax.dynamic_slice(a, start, lead + size)
 
-    out = jax.vmap(one)(tiles.ti, tiles.tj)  # (cap, ..., sx, sy)
-    return jnp.moveaxis(out, 0, -3)
+    out = jax.vmap(one)(*tiles.pos)  # (cap, ..., sx, sy[, sz])
+    return jnp.moveaxis(out, 0, -(nd + 1))
 
 
 def node_index(tiles: Tiles, tile, shape):
-    """Flat node index (cap, tx, ty) of every tile node; ``nx * ny`` (dropped when
+    """Flat node index (cap, tx, ty[, tz]) of every tile node; ``prod(shape)`` (dropped when
     scattering) for empty slots and padding beyond the grid."""
-    tx, ty = tile
-    nx, ny = shape
-    i = tiles.ti[:, None, None] * tx + jnp.arange(tx)[None, :, None]
-    j = tiles.tj[:, None, None] * ty + jnp.arange(ty)[None, None, :]
-    ok = tiles.slot[:, None, None] & (i < nx) & (j < ny)
-    return jnp.where(ok, i * ny + j, nx * ny)
+    nd = len(tile)
+    ok = tiles.slot.reshape((-1,) + (1,) * nd)
+    flat = 0
+    for a in range(nd):
+        along = [1] * nd
+        along[a] = tile[a]
+        i = tiles.pos[a].reshape((-1,) + (1,) * nd) * tile[a] + jnp.arange(tile[a]).reshape(along)
+        ok = ok & (i < shape[a])
+        flat = flat * shape[a] + i
+    return jnp.where(ok, flat, math.prod(shape))
 
 
 def scatter(a, index, values):
-    """``a`` (..., nx, ny) with the tile nodes ``index`` (cap, tx, ty) set to ``values``."""
+    """``a`` (..., nx, ny[, nz]) with the tile nodes ``index`` (cap, tx, ty[, tz]) set to
+    ``values``."""
+    nd = index.ndim - 1
     shape = a.shape
-    flat = a.reshape(shape[:-2] + (-1,))
+    flat = a.reshape(shape[:-nd] + (-1,))
     return flat.at[..., index].set(values, mode="drop").reshape(shape)
 
 
-def halos(r1):
-    """Edge rows (x-, x+, y-, y+) of an array with one ghost row (..., tx + 2, ty + 2)."""
-    return (r1[..., 0, 1:-1], r1[..., -1, 1:-1], r1[..., 1:-1, 0], r1[..., 1:-1, -1])
+def _face(a, axis: int, k: int, nd: int, inner: bool):
+    """The layer ``k`` of ``a`` across tile axis ``axis`` (one of the last ``nd``), with
+    the other tile axes cut to their inner part (``inner``: drop one node at each end)."""
+    idx = [slice(1, -1) if inner else slice(None)] * nd
+    idx[axis] = k
+    return a[(Ellipsis, *idx)]
 
 
-def interior(a, halo: int):
-    return a[..., halo:-halo, halo:-halo]
+def halos(r1, nd: int = 2):
+    """Edge rows (x-, x+, y-, y+[, z-, z+]) of an array with one ghost row
+    (..., tx + 2, ty + 2[, tz + 2])."""
+    out = ()
+    for a in range(nd):
+        out += (_face(r1, a, 0, nd, True), _face(r1, a, -1, nd, True))
+    return out
 
 
-def stencil_neighbours(p):
-    """The four neighbours of the inner part of ``p`` (..., sx, sy): (..., sx - 2, sy - 2)."""
-    return (p[..., :-2, 1:-1], p[..., 2:, 1:-1], p[..., 1:-1, :-2], p[..., 1:-1, 2:])
+def interior(a, halo: int, nd: int = 2):
+    return a[(Ellipsis,) + (slice(halo, -halo),) * nd]
+
+
+def stencil_neighbours(p, nd: int = 2):
+    """The ``2 nd`` neighbours of the inner part of ``p`` (..., sx, sy[, sz]):
+    (..., sx - 2, sy - 2[, sz - 2])."""
+    out = ()
+    for a in range(nd):
+        for lo in (0, 2):
+            idx = [slice(1, -1)] * nd
+            idx[a] = slice(lo, lo - 2 if lo < 2 else None)
+            out += (p[(Ellipsis, *idx)],)
+    return out
 
 
 class Neighbours:
-    """The four neighbours of a tile array (..., cap, tx, ty): inside a tile by shifting, on
-    a tile's edge from the listed neighbour tile's edge row, or from ``fixed``, the edge
-    rows (x-, x+, y-, y+) gathered once, where the neighbour tile is not listed."""
+    """The ``2 nd`` neighbours of a tile array (..., cap, tx, ty[, tz]): inside a tile by
+    shifting, on a tile's face from the listed neighbour tile's face, or from ``fixed``, the
+    faces (x-, x+, y-, y+[, z-, z+]) gathered once, where the neighbour tile is not listed."""
 
     def __init__(self, tiles: Tiles):
         self.tiles = tiles
+        self.nd = len(tiles.pos)
 
     def __call__(self, a, fixed):
+        nd = self.nd
         lst, ptr = self.tiles.listed, self.tiles.ptr
+        cap_axis = a.ndim - nd - 1
 
-        def edge(rows, d):  # the edge rows (..., cap, t) of the neighbour tiles along d
-            return jnp.where(lst[d][:, None], jnp.take(rows, ptr[d], axis=-2), fixed[d])
+        def edge(rows, d):  # the faces (..., cap, ...) of the neighbour tiles along d
+            keep = lst[d].reshape((-1,) + (1,) * (nd - 1))
+            return jnp.where(keep, jnp.take(rows, ptr[d], axis=cap_axis), fixed[d])
 
-        hxm = edge(a[..., -1, :], 0)
-        hxp = edge(a[..., 0, :], 1)
-        hym = edge(a[..., :, -1], 2)
-        hyp = edge(a[..., :, 0], 3)
-        # the tile with one ghost row, built apart (an optimisation barrier keeps XLA from
-        # fusing the concatenation into the stencil, which would then not vectorise)
-        p = jnp.concatenate([hxm[..., None, :], a, hxp[..., None, :]], axis=-2)
-        pad = [(0, 0, 0)] * (hym.ndim - 1) + [(1, 1, 0)]
-        hym = lax.pad(hym, jnp.zeros((), hym.dtype), pad)
-        hyp = lax.pad(hyp, jnp.zeros((), hyp.dtype), pad)
-        p = jnp.concatenate([hym[..., None], p, hyp[..., None]], axis=-1)
+        # the tile with one ghost layer, built apart (an optimisation barrier keeps XLA
+        # from fusing the concatenations into the stencil, which would then not vectorise);
+        # the corners and edges of the ghost layer are zeros that no stencil reads
+        p = a
+        for ax in range(nd):
+            axis = a.ndim - nd + ax
+            lo = edge(_face(a, ax, -1, nd, False), 2 * ax)
+            hi = edge(_face(a, ax, 0, nd, False), 2 * ax + 1)
+            if ax:  # widen the faces over the axes already given their ghost layer
+                pad = [(0, 0, 0)] * (lo.ndim - nd + 1) + [(1, 1, 0)] * ax + [(0, 0, 0)] * (nd - 1 - ax)
+                lo = lax.pad(lo, jnp.zeros((), lo.dtype), pad)
+                hi = lax.pad(hi, jnp.zeros((), hi.dtype), pad)
+            p = jnp.concatenate([jnp.expand_dims(lo, axis), p, jnp.expand_dims(hi, axis)], axis=axis)
         p = lax.optimization_barrier(p)
-        return stencil_neighbours(p)
+        return stencil_neighbours(p, nd)
 
 
 __all__ = [
