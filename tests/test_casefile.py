@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import refmap  # noqa: F401  (float64)
-from refmap.case import CaseError
+from refmap.case import CaseError, CaseWarning
 from refmap.casefile import (
     ArrayShape,
     CaseFileError,
@@ -249,9 +249,9 @@ MALFORMED = [
         _set(("solids", 0, "shape"), {"type": "Disc", "center": [5.0, 5.0], "radius": 0.5}),
         "solids[0].shape: outside the domain",
     ),
-    (
-        _set(("solids", 0, "shape", "b", "center"), [-0.8, 1.8]),
-        "solids[0].shape: outside the domain",
+    (  # reaching the inflow segment of the left edge (the same rule as Case.validate's)
+        _set(("solids", 0, "shape", "b", "center"), [-1.8, -0.5]),
+        "solids[0] ('bar'): the shape reaches the left edge where it is a 'velocity' segment",
     ),
     (_set(("solids", 1, "law", "nu"), 0.7), "solids[1].law.nu: must lie in (-1, 0.5) (got 0.7)"),
     (
@@ -340,6 +340,22 @@ def test_malformed_case_gives_one_named_error(mutate, expected):
     msg = str(err.value)
     assert expected in msg.splitlines()[0], msg
     assert isinstance(err.value, CaseFileError)
+
+
+def test_case_file_accepts_what_case_validate_accepts():
+    """A solid reaching past a wall is accepted from a case file as from Python (it is
+    glued to the resting wall); the case files used to refuse any solid within two node
+    rows of a non-periodic edge, a stricter rule than Case.validate's."""
+    d = copy.deepcopy(BASE)
+    d["solids"][0]["shape"]["b"]["center"] = [-0.8, 1.8]  # through the top wall
+    with pytest.warns(CaseWarning):  # (the base case's gravity warning)
+        case = case_from_dict(d).case
+    with pytest.warns(CaseWarning):
+        case.validate()  # the Python rule agrees (no error)
+    model, params = case.build()
+    state = model.initial_state(params)
+    out = jax.jit(lambda s: model.run_steps(s, params, 20))(state)
+    assert all(bool(np.all(np.isfinite(np.asarray(getattr(out, f))))) for f in ("v", "xi", "phi"))
 
 
 def test_several_problems_are_one_error_listing_each():

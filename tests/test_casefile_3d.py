@@ -338,11 +338,14 @@ def test_3d_anchors_load_and_a_2d_pivot_centre_is_named():
 
 def test_geometry_errors_in_3d_name_the_solid_and_the_z_extent():
     d = copy.deepcopy(BASE)
-    _set(d, SHAPE + ("center",), [-0.2, 0.0, 0.6])
+    _set(d, SHAPE + ("center",), [-0.2, 0.0, 0.6])  # through the (moving) front wall: allowed
+    _load(d)
+    _set(d, SHAPE + ("center",), [-0.8, 0.0, 0.0])  # into the left face's inflow: refused
     with pytest.raises(CaseFileError) as e:
         _load(d)
-    assert e.value.key == "solids[0].shape"
-    assert "[-1, 2] x [-0.75, 0.75] x [-0.75, 0.75]" in str(e.value) and "z in [" in str(e.value)
+    msg = str(e.value)
+    assert "solids[0] ('blob'): the shape reaches the left edge where it is a 'velocity'" in msg
+    assert "[-1.0, 2.0] x [-0.75, 0.75] x [-0.75, 0.75]" in msg and "z in [" in msg
     _set(d, SHAPE + ("center",), [5.0, 5.0, 5.0])
     # the span in current coordinates: the strain (0.909 along z about z = 0) widens z
     with pytest.raises(CaseFileError, match=r"outside the domain .*y in \[4\.7, 5\.3\], z in \[5\.17"):

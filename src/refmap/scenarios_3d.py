@@ -145,7 +145,8 @@ def spheres_collide(n: int = 32) -> Case:
 
 
 # (centre, radius, density) of the settling spheres: three a little above the floor (at
-# least two node rows clear of it from 16 cells on, as case files require), not touching
+# least two node rows clear of it from 16 cells on: a solid touching a resting wall at
+# t = 0 is glued to it), not touching
 # each other, and a fourth, heavier, above the hollow between them (over the centre of
 # the circle through the three centres, -0.03, -0.07 in x, z)
 SETTLE_SPHERES = (
