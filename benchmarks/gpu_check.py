@@ -11,7 +11,8 @@
    Mcell-updates/s, the step's own dt and the wall time per unit of simulated time.
 3. **Options that the CPU tuned** (each optional): ``--band-compare`` times the rotor with
    the band sweeps on tiles and on the full grid (``Numerics.band_sweeps``; the "auto"
-   rule's threshold was measured on a CPU); ``--incompressible`` times the rotor with the
+   rule's threshold was measured on a CPU; ``--band-compare-3d`` the same for the 3D
+   ``sphere_relax`` on 8^3 tiles); ``--incompressible`` times the rotor with the
    incompressible fluid (projection with the fast preconditioner: larger dt, a linear
    solve per step); ``--sizes-3d`` times the 3D ``sphere_relax``.
 
@@ -149,6 +150,8 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--suspension", default="", help="grid sizes for the 100-disc suspension (e.g. 300)")
     ap.add_argument("--band-compare", default="", help="rotor sizes timed with band_sweeps 'band' and 'grid'")
+    ap.add_argument("--band-compare-3d", default="",
+                    help="sphere_relax cube sizes timed with band_sweeps 'band' (8^3 tiles) and 'grid'")
     ap.add_argument("--incompressible", default="", help="rotor sizes timed with the incompressible fluid")
     ap.add_argument("--sizes-3d", default="", help="cube sizes of the 3D sphere_relax (e.g. 64,128)")
     ap.add_argument("--json", default=None, help="also write the figures here (rewritten after every row)")
@@ -191,6 +194,10 @@ def main(argv=None):
         for mode in ("band", "grid"):
             _row(f"rotor, band_sweeps={mode}", n, _with(get_case("rotor", n), band_sweeps=mode),
                  a.steps, rows, report)
+    for n in sizes(a.band_compare_3d):
+        for mode in ("band", "grid"):
+            _row(f"sphere_relax, band_sweeps={mode} 3D", n,
+                 _with(get_case("sphere_relax", n), band_sweeps=mode), a.steps, rows, report)
     for n in sizes(a.incompressible):
         case = _with(get_case("rotor", n), fluid_model="incompressible", pressure_preconditioner="fast")
         _row("rotor, incompressible (fast)", n, case, a.steps, rows, report)
