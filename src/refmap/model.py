@@ -54,12 +54,13 @@ from refmap.state import FluidParams, Numerics, Params, State
 from refmap.viscosity import ImplicitViscosity
 
 # band_sweeps = "auto": sweep the band on tiles only when its listed tiles (the capacity) are
-# at most this fraction of the grid's, by grid dimension.  2D: a tile sweep cost 1.8-2.5
-# times a full-grid sweep per node (rotor, 128^2-512^2, docs/benchmarks.md), so the
-# break-even lay at 0.40-0.57.  3D (8^3 tiles, one core): the band operator on tiles beat
-# the full grid 2.6x with a capacity of 70 % of the tiles (sphere_relax 48^3) and lost
-# (0.89x) at 100 % (spheres_settle 32^3): docs/benchmarks.md, "Band tiles in 3D"
-BAND_TILE_FRACTION = {2: 0.35, 3: 0.75}
+# at most this fraction of the grid's, by grid dimension (one core, 80 smoothing sweeps,
+# docs/benchmarks.md).  2D, with the leaner tile sweeps: at a capacity of 50 % of the tiles
+# the whole step is 1.8x (two_balls 128^2) and 2.3x (rotor 256^2) faster on tiles; at 100 %
+# (rotor 128^2) 0.92x.  3D (8^3 tiles): the band operator on tiles beat the full grid 1.9x
+# at 70 % (sphere_relax 48^3) and was even at 100 % (spheres_settle 32^3).  (2D used 0.35,
+# set from the first, slower tile sweeps.)
+BAND_TILE_FRACTION = {2: 0.75, 3: 0.75}
 # a first, tighter band capacity (this times the tiles at t = 0, plus 8) tried before
 # Numerics.band_capacity's: the band work is proportional to the capacity
 BAND_TIGHT = 1.25

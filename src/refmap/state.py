@@ -160,7 +160,7 @@ class Numerics:
     run: ``"band"`` on the grid tiles that solid's band covers (:mod:`refmap.narrowband`,
     gathered once per step; equal to the full-grid sweeps to round-off), ``"grid"`` over
     the whole grid, ``"auto"`` (default) on tiles when the listed tiles are at most
-    ``BAND_TILE_FRACTION`` (0.35 in 2D, 0.75 in 3D) of the grid's tiles and over the whole
+    ``BAND_TILE_FRACTION`` (0.75) of the grid's tiles and over the whole
     grid otherwise (a tile sweep costs more per node than a full-grid sweep, measured in
     docs/benchmarks.md, so a band that covers more of the grid is cheaper swept densely; in
     3D such a band is swept in a box round it when the box is small enough).  Tiles are

@@ -1,12 +1,16 @@
-"""The 3D band work on tiles against the full grid and the box round each band, in one run.
+"""The band work on tiles against the full grid (and, in 3D, the box round each band), in one run.
 
-For each 3D scenario and cube size, the model is built three times, differing only in where
-each solid's extrapolation and smoothing sweeps run:
+For each scenario (2D or 3D) and size, the model is built once per layout, differing only in
+where each solid's extrapolation and smoothing sweeps run:
 
 * ``grid``: the whole grid (``Numerics.band_sweeps = "grid"``; the 3D code before tiles);
-* ``window``: a box round each band that follows the body (``Model.band_window``, the
-  layout ``"auto"`` used in 3D before tiles, forced here even where "auto" would not use it);
-* ``tiles``: the listed 8 x 8 x 8 tiles of each band (``band_sweeps = "band"``).
+* ``window`` (3D only): a box round each band that follows the body (``Model.band_window``,
+  the layout ``"auto"`` used in 3D before tiles, forced here even where "auto" would not);
+* ``tiles``: the listed tiles of each band (``band_sweeps = "band"``; 16 x 16 in 2D,
+  8 x 8 x 8 in 3D), whatever share of the grid they list.
+
+The printed layout says how many tiles the tighter capacity sweeps, the capacity, and the
+grid's tiles: ``"auto"`` tiles a band when capacity / grid's tiles <= ``BAND_TILE_FRACTION``.
 
 Timed, one process, best of ``--reps`` calls after a compile call:
 
@@ -19,9 +23,10 @@ The three layouts give the same numbers (printed: the largest difference of the 
 the grid's).  Pin one core for one-core figures::
 
     XLA_FLAGS=--xla_cpu_multi_thread_eigen=false taskset -c 0 \\
-        python benchmarks/bench_band_3d.py --cases sphere_relax:48,sphere_relax:64,spheres_settle:48
+        python benchmarks/bench_band_layouts.py --cases sphere_relax:48,sphere_relax:64,spheres_settle:48
+    ... --cases rotor:64,rotor:128,rotor:256,two_balls:128,two_balls:256
 
-docs/benchmarks.md ("Band tiles in 3D") has the figures.
+docs/benchmarks.md ("Band tiles in 3D", "Where 'auto' tiles in 2D") has the figures.
 """
 
 from __future__ import annotations
@@ -86,7 +91,9 @@ def layout(model):
 
 def run_case(name, n, steps, reps):
     rows = {}
-    for mode in MODES:
+    nd = get_case(name, n).grid.ndim
+    modes = MODES if nd == 3 else ("grid", "tiles")
+    for mode in modes:
         model, params = build(name, n, mode)
         s0 = model.initial_state(params)
         dt = model.time_step(s0, params)[0]
@@ -98,25 +105,27 @@ def run_case(name, n, steps, reps):
         out, t_step, comp = best_of(run, s0, reps)
         rows[mode] = dict(op=t_op * 1e3, step=t_step / steps * 1e3, compile=comp,
                           xi=np.asarray(out.xi), ext=np.asarray(ext), layout=layout(model))
-    print(f"\n{name} {n}^3 (one solid per map; 80 smoothing sweeps)", flush=True)
+    print(f"\n{name} {n}^{nd} (80 smoothing sweeps)", flush=True)
     print(f"  {'layout':7s} {'where':34s} {'operator [ms]':>14s} {'step [ms]':>10s} "
           f"{'compile [s]':>11s} {'max |dxi|':>10s}")
-    for mode in MODES:
+    for mode in modes:
         r = rows[mode]
         diff = max(float(np.abs(r["xi"] - rows["grid"]["xi"]).max()),
                    float(np.abs(r["ext"] - rows["grid"]["ext"]).max()))
         print(f"  {mode:7s} {r['layout']:34s} {r['op']:14.1f} {r['step']:10.1f} "
               f"{r['compile']:11.1f} {diff:10.1e}")
-    g, w, t = (rows[m] for m in MODES)
-    print(f"  tiles against grid: operator {g['op'] / t['op']:.2f}x, step {g['step'] / t['step']:.2f}x; "
-          f"against the box: operator {w['op'] / t['op']:.2f}x, step {w['step'] / t['step']:.2f}x",
-          flush=True)
+    g, t = rows["grid"], rows["tiles"]
+    line = f"  tiles against grid: operator {g['op'] / t['op']:.2f}x, step {g['step'] / t['step']:.2f}x"
+    if "window" in rows:
+        w = rows["window"]
+        line += f"; against the box: operator {w['op'] / t['op']:.2f}x, step {w['step'] / t['step']:.2f}x"
+    print(line, flush=True)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default="sphere_relax:48,sphere_relax:64,spheres_settle:48",
-                    help="comma-separated NAME:N (3D scenarios)")
+                    help="comma-separated NAME:N (2D or 3D scenarios)")
     ap.add_argument("--steps", type=int, default=3)
     ap.add_argument("--reps", type=int, default=2)
     a = ap.parse_args(argv)
