@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import time
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -43,6 +44,9 @@ import refmap  # noqa: F401  (float64)
 from refmap import extrapolation
 from refmap import model as model_module
 from refmap.scenarios import get_case
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gpu_check import best_of  # noqa: E402  (the same timing rule as the GPU figures)
 
 MODES = ("grid", "window", "tiles")
 
@@ -54,29 +58,17 @@ def build(name, n, mode):
         fixed_smooth_sweeps=case.numerics.smooth_max_sweeps,
         band_sweeps={"grid": "grid", "window": "auto", "tiles": "band"}[mode],
     )
-    saved = dict(model_module.BAND_TILE_FRACTION)
+    saved = model_module.BAND_TILE_FRACTION
     saved_w = model_module.BAND_WINDOW_FRACTION
     if mode == "window":  # no tiles, and the box whatever its size
-        model_module.BAND_TILE_FRACTION[3] = 0.0
+        model_module.BAND_TILE_FRACTION = 0.0
         model_module.BAND_WINDOW_FRACTION = 1.0
     try:
         model, params = case.replace(numerics=numerics).build()
     finally:
-        model_module.BAND_TILE_FRACTION.update(saved)
+        model_module.BAND_TILE_FRACTION = saved
         model_module.BAND_WINDOW_FRACTION = saved_w
     return model, params
-
-
-def best_of(fn, arg, reps):
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn(arg))
-    compile_s = time.perf_counter() - t0
-    best = float("inf")
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(arg))
-        best = min(best, time.perf_counter() - t0)
-    return out, best, compile_s
 
 
 def layout(model):

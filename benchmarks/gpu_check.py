@@ -72,16 +72,18 @@ def parity(n, steps, tol):
     return ok, rows
 
 
-def _timed(fn, arg, reps=3):
+def best_of(fn, arg, reps=3):
+    """``(out, best, compile_s)``: a first call (compile and run), then the best wall time
+    of ``reps`` calls of the jitted ``fn(arg)``."""
     t0 = time.perf_counter()
-    jax.block_until_ready(fn(arg))
-    comp = time.perf_counter() - t0
+    out = jax.block_until_ready(fn(arg))
+    compile_s = time.perf_counter() - t0
     best = float("inf")
     for _ in range(reps):
         t0 = time.perf_counter()
         jax.block_until_ready(fn(arg))
         best = min(best, time.perf_counter() - t0)
-    return comp, best
+    return out, best, compile_s
 
 
 def _full_sweeps(case):
@@ -119,7 +121,7 @@ def _throughput(case, steps):
     state = jax.jit(model.initial_state)(params)
     dt = model.time_step(state, params)[0]
     fn = jax.jit(lambda s: model.run_steps(s, params, steps, dt=dt))
-    comp, best = _timed(fn, state)
+    _, best, comp = best_of(fn, state)
     cells = int(np.prod(model.grid.shape()))
     ms = best / steps * 1e3
     return dict(compile_s=comp, ms_per_step=ms, mcell_updates_s=cells * steps / best / 1e6,

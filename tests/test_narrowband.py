@@ -146,14 +146,14 @@ def test_auto_tiles_only_a_band_that_covers_little_of_the_grid():
     }
     assert caps["grid"] is None
     assert caps["auto"] == caps["band"] is not None
-    assert caps["auto"] <= BAND_TILE_FRACTION[2] * 16 * 16
+    assert caps["auto"] <= BAND_TILE_FRACTION * 16 * 16
     rotor = {}
     for m in ("auto", "band"):
         case = get_case("rotor", 64)
         model, _ = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps=m)).build()
         rotor[m] = model.band_capacity
     assert rotor["auto"] is None
-    assert rotor["band"] > BAND_TILE_FRACTION[2] * 4 * 4
+    assert rotor["band"] > BAND_TILE_FRACTION * 4 * 4
 
 
 # ------------------------------------------------------------------------------- 3D

@@ -54,13 +54,13 @@ from refmap.state import FluidParams, Numerics, Params, State
 from refmap.viscosity import ImplicitViscosity
 
 # band_sweeps = "auto": sweep the band on tiles only when its listed tiles (the capacity) are
-# at most this fraction of the grid's, by grid dimension (one core, 80 smoothing sweeps,
+# at most this fraction of the grid's, in 2D and 3D alike (one core, 80 smoothing sweeps,
 # docs/benchmarks.md).  2D, with the leaner tile sweeps: at a capacity of 50 % of the tiles
 # the whole step is 1.8x (two_balls 128^2) and 2.3x (rotor 256^2) faster on tiles; at 100 %
 # (rotor 128^2) 0.92x.  3D (8^3 tiles): the band operator on tiles beat the full grid 1.9x
 # at 70 % (sphere_relax 48^3) and was even at 100 % (spheres_settle 32^3).  (2D used 0.35,
 # set from the first, slower tile sweeps.)
-BAND_TILE_FRACTION = {2: 0.75, 3: 0.75}
+BAND_TILE_FRACTION = 0.75
 # a first, tighter band capacity (this times the tiles at t = 0, plus 8) tried before
 # Numerics.band_capacity's: the band work is proportional to the capacity
 BAND_TIGHT = 1.25
@@ -296,7 +296,7 @@ class Model:
         None (full-grid sweeps) with ``band_sweeps = "grid"``, without solids, when the
         grid cannot be tiled (:func:`refmap.narrowband.tile_shape`), or with
         ``band_sweeps = "auto"`` when that is more than ``BAND_TILE_FRACTION`` of the
-        grid's tiles for the grid's dimension (the full-grid sweeps are then the cheaper).
+        grid's tiles (the full-grid sweeps are then the cheaper).
         A band that outgrows it makes the step fall back on the full-grid sweeps (same
         result, full cost).  A tighter capacity, ``BAND_TIGHT`` times those tiles plus 8,
         is tried first.  Tiles are squares of about 16 nodes a side in 2D and cubes of
@@ -320,7 +320,7 @@ class Model:
                     phi - shift, n.band * self.h - shift, self.band_tile, self.bc.periodic))
             total = math.prod(narrowband.n_tiles(self.grid.shape(), self.band_tile))
             capacity = min(int(math.ceil(n.band_capacity * counts.max())) + 8, total)
-            if n.band_sweeps == "auto" and capacity > BAND_TILE_FRACTION[nd] * total:
+            if n.band_sweeps == "auto" and capacity > BAND_TILE_FRACTION * total:
                 capacity = None
         if capacity is None:
             if nd == 3:  # a box round each band, where it is small enough
