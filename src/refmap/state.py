@@ -258,14 +258,15 @@ class Numerics:
             "viscosity": ("explicit", "implicit"),
             "viscosity_preconditioner": ("jacobi", "fast"),
             "fluid_model": ("compressible", "incompressible"),
-            "pressure_preconditioner": ("fast", "jacobi"),
+            "pressure_preconditioner": ("fast", "jacobi", "multigrid"),
             "band_force": ("local", "solid"),
             "fluid_mass": ("advected", "conserved"),
         }
-        for name, (a, b) in choices.items():
+        for name, allowed in choices.items():
             value = getattr(self, name)
-            if value not in (a, b):
-                raise ValueError(f"numerics {name} must be {a!r} or {b!r}, got {value!r}")
+            if value not in allowed:
+                listed = ", ".join(map(repr, allowed[:-1])) + f" or {allowed[-1]!r}"
+                raise ValueError(f"numerics {name} must be {listed}, got {value!r}")
         for name in ("viscosity_rtol", "pressure_rtol"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 < value < 1):
