@@ -78,7 +78,7 @@ def test_operator_symmetric_null_space_constants(edges):
 
 
 @pytest.mark.parametrize("edges", sorted(EDGES))
-@pytest.mark.parametrize("precond", ["fast", "jacobi"])
+@pytest.mark.parametrize("precond", ["fast", "jacobi", "multigrid"])
 def test_projection_against_dense_solve(edges, precond):
     """CG's projection equals a dense least-squares solve; the discrete divergence after it
     is below 1e-10 (a random v* of divergence ~30 needs pressure_rtol = 1e-13; the residual
@@ -132,7 +132,7 @@ OUTFLOW_EDGES = {
 
 
 @pytest.mark.parametrize("edges", sorted(OUTFLOW_EDGES))
-@pytest.mark.parametrize("precond", ["fast", "jacobi"])
+@pytest.mark.parametrize("precond", ["fast", "jacobi", "multigrid"])
 def test_outflow_operator_definite_and_projection_exact(edges, precond):
     """With an outflow the pressure is zero on the outflow row and that row's continuity
     equation is dropped: A is symmetric positive definite (no constant null space, so no
