@@ -210,3 +210,23 @@ def test_bad_preconditioner_names_the_value():
     m = Model(Grid(8, 8, 0.0, 1.0, 0.0, 1.0), (), Boundary(), MG)
     with pytest.raises(ValueError, match="'multigrid', got 'amg'"):
         Projection(m, preconditioner="amg")
+
+
+def test_case_file_accepts_multigrid(tmp_path):
+    import tomllib
+
+    from refmap.casefile import CaseFileError, case_from_dict, dump_case, load_case
+
+    text = (
+        '[grid]\nn = 16\n[time]\nt_end = 0.1\n[numerics]\nfluid_model = "incompressible"\n'
+        'pressure_preconditioner = "multigrid"\n'
+    )
+    case = case_from_dict(tomllib.loads(text)).case
+    model, _ = case.build()
+    assert model.projection.preconditioner_kind == "multigrid"
+    back = load_case(dump_case(case, tmp_path / "mg.toml"))
+    assert back.numerics.pressure_preconditioner == "multigrid"
+    doc = tomllib.loads(text)
+    doc["numerics"]["pressure_preconditioner"] = "ilu"
+    with pytest.raises(CaseFileError, match="pressure_preconditioner.*'ilu'"):
+        case_from_dict(doc)

@@ -200,7 +200,9 @@ class Numerics:
     rho0 and a pressure projection makes the velocity discretely divergence-free each step
     (:mod:`refmap.projection`: conjugate gradients to relative residual
     ``pressure_rtol``, preconditioned by the exact constant-coefficient FFT/DCT solve,
-    ``pressure_preconditioner = "fast"``, or by the diagonal, ``"jacobi"``); lambda_f is
+    ``pressure_preconditioner = "fast"``, by the diagonal, ``"jacobi"``, or by a multigrid
+    V-cycle that sees held anchors and density jumps, ``"multigrid"``,
+    :mod:`refmap.multigrid`); lambda_f is
     then unused and the fluid-sound time-step limit is dropped (docs/method.md,
     "Incompressible fluid").  ``volume_correction`` (incompressible only, default 10, a rate
     per unit of the case's time) takes each solid's volume drift ``ln J`` out through the
