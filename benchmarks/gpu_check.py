@@ -13,8 +13,8 @@
    the band sweeps on tiles and on the full grid (``Numerics.band_sweeps``; the "auto"
    rule's threshold was measured on a CPU; ``--band-compare-3d`` the same for the 3D
    ``sphere_relax`` on 8^3 tiles); ``--incompressible`` times the rotor with the
-   incompressible fluid (projection with the fast preconditioner: larger dt, a linear
-   solve per step); ``--sizes-3d`` times the 3D ``sphere_relax``.
+   incompressible fluid (projection with the fast and the multigrid preconditioners:
+   larger dt, a linear solve per step); ``--sizes-3d`` times the 3D ``sphere_relax``.
 
 Each section is guarded: an error is printed and recorded and the next section runs, and
 ``--json`` is rewritten after every row, so a run stopped at a time limit keeps what it
@@ -201,8 +201,9 @@ def main(argv=None):
             _row(f"sphere_relax, band_sweeps={mode} 3D", n,
                  _with(get_case("sphere_relax", n), band_sweeps=mode), a.steps, rows, report)
     for n in sizes(a.incompressible):
-        case = _with(get_case("rotor", n), fluid_model="incompressible", pressure_preconditioner="fast")
-        _row("rotor, incompressible (fast)", n, case, a.steps, rows, report)
+        for pre in ("fast", "multigrid"):
+            case = _with(get_case("rotor", n), fluid_model="incompressible", pressure_preconditioner=pre)
+            _row(f"rotor, incompressible ({pre})", n, case, a.steps, rows, report)
     for n in sizes(a.sizes_3d):
         _row("sphere_relax 3D", n, get_case("sphere_relax", n), a.steps, rows, report)
     return 0 if ok and not any("error" in r for r in rows) else 1

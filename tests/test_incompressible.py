@@ -78,7 +78,7 @@ def test_operator_symmetric_null_space_constants(edges):
 
 
 @pytest.mark.parametrize("edges", sorted(EDGES))
-@pytest.mark.parametrize("precond", ["fast", "jacobi"])
+@pytest.mark.parametrize("precond", ["fast", "jacobi", "multigrid"])
 def test_projection_against_dense_solve(edges, precond):
     """CG's projection equals a dense least-squares solve; the discrete divergence after it
     is below 1e-10 (a random v* of divergence ~30 needs pressure_rtol = 1e-13; the residual
@@ -132,7 +132,7 @@ OUTFLOW_EDGES = {
 
 
 @pytest.mark.parametrize("edges", sorted(OUTFLOW_EDGES))
-@pytest.mark.parametrize("precond", ["fast", "jacobi"])
+@pytest.mark.parametrize("precond", ["fast", "jacobi", "multigrid"])
 def test_outflow_operator_definite_and_projection_exact(edges, precond):
     """With an outflow the pressure is zero on the outflow row and that row's continuity
     equation is dropped: A is symmetric positive definite (no constant null space, so no
@@ -292,10 +292,14 @@ def test_hydrostatic_rest_closed_box():
     np.testing.assert_allclose(np.asarray(out["pressure"])[1:, 1:], pf, atol=1e-12)
 
 
-def test_gradient_through_solve_central_differences():
+@pytest.mark.parametrize("precond", ["fast", "multigrid"])
+def test_gradient_through_solve_central_differences(precond):
     """Reverse-mode derivatives of the projection with respect to the density (inside the
-    operator) and the predicted velocity match central differences (relative 1e-5)."""
-    m = _model(EDGES["walls"], n=(10, 8))
+    operator) and the predicted velocity match central differences (relative 1e-5), with
+    the default and the multigrid preconditioner (whose coefficients are held out of the
+    derivative as the fast one's)."""
+    nums = Numerics(fluid_model="incompressible", pressure_preconditioner=precond)
+    m = _model(EDGES["walls"], n=(10, 8), numerics=nums)
     pr = m.projection
     nx, ny = m.grid.shape()
     X, Y = m.grid.mesh("node")

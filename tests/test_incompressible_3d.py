@@ -107,7 +107,7 @@ def test_operator_symmetric_null_space_constants_3d(edges):
 
 
 @pytest.mark.parametrize("edges", sorted(EDGES) + sorted(OUTFLOW))
-@pytest.mark.parametrize("precond", ["fast", "jacobi"])
+@pytest.mark.parametrize("precond", ["fast", "jacobi", "multigrid"])
 def test_projection_against_dense_solve_3d(edges, precond):
     """CG's projection equals a dense (least-squares) solve, and D v is below 1e-10 after
     it, with both preconditioners; with an outflow face A is definite and the pressure is

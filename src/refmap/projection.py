@@ -48,7 +48,10 @@ preconditioned conjugate gradients inside ``lax.custom_linear_solve``
 (:func:`refmap.linsolve.solve_spd`), so derivatives are one more solve, not the
 iterations.  Preconditioner: the exact fast inverse of the constant-coefficient operator
 ``mean(1/rho) (-Dxx - Dyy)`` (``"fast"``, FFT on periodic axes, DCT-II on the others:
-exact for uniform density), or the diagonal (``"jacobi"``).
+exact for uniform density), the diagonal (``"jacobi"``), or a multigrid V-cycle on ``A``'s
+own face coefficients ``W / rho`` (``"multigrid"``, :mod:`refmap.multigrid`): it sees
+what the fast one does not, a held anchor (zero coefficients: an obstacle inside the box)
+and density jumps, and takes about 10 iterations whatever the grid and the case.
 """
 
 from __future__ import annotations
@@ -59,6 +62,10 @@ import numpy as np
 
 from refmap.boundary import AXIS_FACES, _waveform
 from refmap.linsolve import SeparableSolver, cg, solve_spd
+from refmap.multigrid import Hierarchy, face_diagonal, vcycle
+
+#: the values of ``Numerics.pressure_preconditioner``
+PRECONDITIONERS = ("fast", "jacobi", "multigrid")
 
 _HIGH = {"left": False, "right": True, "bottom": False, "top": True, "back": False, "front": True}
 _AXIS = {"left": 0, "right": 0, "bottom": 1, "top": 1, "back": 2, "front": 2}
@@ -207,9 +214,10 @@ class Projection:
     def __init__(
         self, model, rtol: float = 1e-10, maxiter: int = 500, preconditioner: str = "fast"
     ):
-        if preconditioner not in ("fast", "jacobi"):
+        if preconditioner not in PRECONDITIONERS:
             raise ValueError(
-                f"pressure preconditioner must be 'fast' or 'jacobi', got {preconditioner!r}"
+                "pressure preconditioner must be one of "
+                f"{', '.join(map(repr, PRECONDITIONERS))}, got {preconditioner!r}"
             )
         g = model.grid
         check_boundary(model.boundary, g)
@@ -257,6 +265,7 @@ class Projection:
         )
         self.fast = SeparableSolver.on_grid(g, kinds)
         self.fast_definite = any(k != "periodic" and "odd" in k for k in kinds)
+        self.hierarchy = Hierarchy.build(g.shape(), self.periodic)
 
     # ------------------------------------------------------------------ operators
     def _edge(self, name, t):
@@ -384,6 +393,8 @@ class Projection:
             if self.fast_definite:
                 return lambda r: keep * self.fast.solve(keep * r, 0.0, *cs) + drop * r
             return lambda r: keep * P(keep * r) + drop * r
+        if self.preconditioner_kind == "multigrid":
+            return self._multigrid(inv, sg(s))
         # the diagonal of B rho^-1 B^T: each node sees the free u at i and i + 1, v at j, j + 1
         sums = self._row_sums(inv)
         diag = sums[0] / self.spacing[0] ** 2
@@ -394,6 +405,46 @@ class Projection:
         else:
             diag = diag + sg(s) / int(np.prod(g.shape()))
         return lambda r: r / diag
+
+    def faces(self, inv):
+        """The operator ``B diag(inv) B^T`` without its ``s P0`` term, as the face
+        coefficients and extra diagonal of :mod:`refmap.multigrid` (its outflow rows are
+        zero there: the identity rows of ``A`` are the cycle's identity rows)."""
+        nd = self.ndim
+        keep = jnp.asarray(self.keep)
+        faces = []
+        extra = jnp.zeros_like(inv)
+        for a, h in enumerate(self.spacing):
+            # the face at node j (the free velocity component there) couples j - 1 and j
+            c = self.mask[a] * inv / h**2
+            if not self.periodic[a]:
+                c = c.at[_index(nd, a, 0)].set(0.0)  # no node before the first
+            before = jnp.roll(keep, 1, axis=a)
+            faces.append(c * keep * before)
+            # a face between a kept and a removed (outflow) node: a Dirichlet term on the kept
+            extra = extra + c * keep * (1.0 - before) + jnp.roll(c * (1.0 - keep) * before, -1, axis=a)
+        return tuple(faces), extra
+
+    def _multigrid(self, inv, s):
+        faces, extra = self.faces(inv)
+        V = vcycle(self.hierarchy, faces, extra)
+        moving = (face_diagonal(faces, extra) > 0).astype(inv.dtype)
+        fixed = 1.0 - moving
+
+        def P0(r):
+            # exactly the identity on the rows that nothing moves (held, outflow)
+            return moving * V(moving * r) + fixed * r
+
+        if self.has_outflow:
+            return P0
+
+        def P(r):
+            # the constants are A's eigenvector with eigenvalue s; the cycle on the rest
+            mean = jnp.mean(r)
+            z = P0(r - mean)
+            return z - jnp.mean(z) + mean / s
+
+        return P
 
     # ------------------------------------------------------------------ the projection
     def project(self, v_star, rho, t_new, dt, weight=None, return_info=False, source=None):

@@ -200,7 +200,9 @@ class Numerics:
     rho0 and a pressure projection makes the velocity discretely divergence-free each step
     (:mod:`refmap.projection`: conjugate gradients to relative residual
     ``pressure_rtol``, preconditioned by the exact constant-coefficient FFT/DCT solve,
-    ``pressure_preconditioner = "fast"``, or by the diagonal, ``"jacobi"``); lambda_f is
+    ``pressure_preconditioner = "fast"``, by the diagonal, ``"jacobi"``, or by a multigrid
+    V-cycle that sees held anchors and density jumps, ``"multigrid"``,
+    :mod:`refmap.multigrid`); lambda_f is
     then unused and the fluid-sound time-step limit is dropped (docs/method.md,
     "Incompressible fluid").  ``volume_correction`` (incompressible only, default 10, a rate
     per unit of the case's time) takes each solid's volume drift ``ln J`` out through the
@@ -258,14 +260,15 @@ class Numerics:
             "viscosity": ("explicit", "implicit"),
             "viscosity_preconditioner": ("jacobi", "fast"),
             "fluid_model": ("compressible", "incompressible"),
-            "pressure_preconditioner": ("fast", "jacobi"),
+            "pressure_preconditioner": ("fast", "jacobi", "multigrid"),
             "band_force": ("local", "solid"),
             "fluid_mass": ("advected", "conserved"),
         }
-        for name, (a, b) in choices.items():
+        for name, allowed in choices.items():
             value = getattr(self, name)
-            if value not in (a, b):
-                raise ValueError(f"numerics {name} must be {a!r} or {b!r}, got {value!r}")
+            if value not in allowed:
+                listed = ", ".join(map(repr, allowed[:-1])) + f" or {allowed[-1]!r}"
+                raise ValueError(f"numerics {name} must be {listed}, got {value!r}")
         for name in ("viscosity_rtol", "pressure_rtol"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 < value < 1):
