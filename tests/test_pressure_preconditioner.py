@@ -204,8 +204,8 @@ def test_multigrid_rotor_run_equals_fast_run():
 
 
 def test_bad_preconditioner_names_the_value():
-    with pytest.raises(ValueError, match="pressure_preconditioner must be 'fast', 'jacobi' or "
-                                         "'multigrid', got 'ilu'"):
+    with pytest.raises(ValueError, match="pressure_preconditioner must be 'auto', 'fast', "
+                                         "'jacobi' or 'multigrid', got 'ilu'"):
         Numerics(fluid_model="incompressible", pressure_preconditioner="ilu")
     m = Model(Grid(8, 8, 0.0, 1.0, 0.0, 1.0), (), Boundary(), MG)
     with pytest.raises(ValueError, match="'multigrid', got 'amg'"):
@@ -230,3 +230,25 @@ def test_case_file_accepts_multigrid(tmp_path):
     doc["numerics"]["pressure_preconditioner"] = "ilu"
     with pytest.raises(CaseFileError, match="pressure_preconditioner.*'ilu'"):
         case_from_dict(doc)
+
+
+@pytest.mark.parametrize("name, expected", [("rotor", "multigrid"), ("stick", "multigrid"),
+                                            ("two_balls", "multigrid"), ("circle", "fast"),
+                                            ("settle", "fast")])
+def test_auto_takes_multigrid_where_an_anchor_holds_nodes(name, expected):
+    """The default ``"auto"``: the cycle where a solid has an anchor (rotor's hub, stick's
+    clamp, two_balls' held ball: fast needs 26-103 CG iterations there, the cycle 10-12),
+    the fast solve for free bodies (nearly exact at uniform density: 2-4 iterations)."""
+    from refmap.scenarios import get_case
+
+    case = get_case(name, 16)
+    assert case.numerics.pressure_preconditioner == "auto"
+    num = dataclasses.replace(case.numerics, fluid_model="incompressible")
+    model, _ = dataclasses.replace(case, numerics=num).build()
+    has_anchor = any(s.anchor is not None for s in model.solids)
+    assert has_anchor == (expected == "multigrid")
+    assert model.projection.preconditioner_kind == expected
+    # an explicit choice is kept
+    num = dataclasses.replace(num, pressure_preconditioner="jacobi")
+    model, _ = dataclasses.replace(case, numerics=num).build()
+    assert model.projection.preconditioner_kind == "jacobi"

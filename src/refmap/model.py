@@ -49,7 +49,7 @@ from refmap.operators import (
     laplacian,
     node_average,
 )
-from refmap.projection import Projection
+from refmap.projection import Projection, resolve_preconditioner
 from refmap.state import FluidParams, Numerics, Params, State
 from refmap.viscosity import ImplicitViscosity
 
@@ -252,7 +252,8 @@ class Model:
         # checks the edge conditions
         self.projection = (
             Projection(self, rtol=self.numerics.pressure_rtol,
-                       preconditioner=self.numerics.pressure_preconditioner)
+                       preconditioner=resolve_preconditioner(
+                           self.numerics.pressure_preconditioner, self.solids))
             if self.numerics.fluid_model == "incompressible" else None
         )
         if self.numerics.fluid_mass == "conserved":

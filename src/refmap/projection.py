@@ -64,8 +64,27 @@ from refmap.boundary import AXIS_FACES, _waveform
 from refmap.linsolve import SeparableSolver, cg, solve_spd
 from refmap.multigrid import Hierarchy, face_diagonal, vcycle
 
-#: the values of ``Numerics.pressure_preconditioner``
+#: the preconditioners :class:`Projection` takes (``Numerics.pressure_preconditioner`` also
+#: takes ``"auto"``, :func:`resolve_preconditioner`)
 PRECONDITIONERS = ("fast", "jacobi", "multigrid")
+
+
+def resolve_preconditioner(choice: str, solids) -> str:
+    """The preconditioner for ``Numerics.pressure_preconditioner = choice``: ``"auto"``
+    takes ``"multigrid"`` when any solid has an anchor, else ``"fast"``; any other value is
+    kept.
+
+    Why (docs/validation_incompressible.md, "Preconditioners"; one core): an anchor's held
+    nodes are an obstacle inside the box, which the constant-coefficient fast solve does
+    not see, so CG needs 26 (two_balls, one ball held) to 103 (rotor) iterations with it,
+    against 10-12 with the cycle (step 1.5x to 6.1x faster at 128^2). Without an anchor the
+    fast solve is nearly exact wherever the density is nearly uniform (circle at 128^2: 4
+    iterations, 1.2x faster than the cycle's 9; the 3D sphere_cavity: 2 against 12,
+    1.5-1.7x faster). Many free bodies of two densities fall in between (the 100-disc
+    suspension at 64^2: fast 14 iterations, the cycle 9, the same step time)."""
+    if choice != "auto":
+        return choice
+    return "multigrid" if any(getattr(s, "anchor", None) is not None for s in solids) else "fast"
 
 _HIGH = {"left": False, "right": True, "bottom": False, "top": True, "back": False, "front": True}
 _AXIS = {"left": 0, "right": 0, "bottom": 1, "top": 1, "back": 2, "front": 2}
@@ -486,4 +505,4 @@ class Projection:
         return v
 
 
-__all__ = ["Projection", "check_boundary"]
+__all__ = ["PRECONDITIONERS", "Projection", "check_boundary", "resolve_preconditioner"]

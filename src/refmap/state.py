@@ -202,7 +202,9 @@ class Numerics:
     ``pressure_rtol``, preconditioned by the exact constant-coefficient FFT/DCT solve,
     ``pressure_preconditioner = "fast"``, by the diagonal, ``"jacobi"``, or by a multigrid
     V-cycle that sees held anchors and density jumps, ``"multigrid"``,
-    :mod:`refmap.multigrid`); lambda_f is
+    :mod:`refmap.multigrid`; the default ``"auto"`` takes the multigrid cycle when a solid
+    has an anchor and the fast solve otherwise, :func:`refmap.projection.resolve_preconditioner`);
+    lambda_f is
     then unused and the fluid-sound time-step limit is dropped (docs/method.md,
     "Incompressible fluid").  ``volume_correction`` (incompressible only, default 10, a rate
     per unit of the case's time) takes each solid's volume drift ``ln J`` out through the
@@ -246,7 +248,7 @@ class Numerics:
     viscosity_preconditioner: str = "jacobi"
     fluid_model: str = "compressible"
     pressure_rtol: float = 1e-10
-    pressure_preconditioner: str = "fast"
+    pressure_preconditioner: str = "auto"
     volume_correction: float = 10.0
     fluid_mass: str = "advected"
 
@@ -260,7 +262,7 @@ class Numerics:
             "viscosity": ("explicit", "implicit"),
             "viscosity_preconditioner": ("jacobi", "fast"),
             "fluid_model": ("compressible", "incompressible"),
-            "pressure_preconditioner": ("fast", "jacobi", "multigrid"),
+            "pressure_preconditioner": ("auto", "fast", "jacobi", "multigrid"),
             "band_force": ("local", "solid"),
             "fluid_mass": ("advected", "conserved"),
         }
