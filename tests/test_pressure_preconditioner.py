@@ -252,3 +252,42 @@ def test_auto_takes_multigrid_where_an_anchor_holds_nodes(name, expected):
     num = dataclasses.replace(num, pressure_preconditioner="jacobi")
     model, _ = dataclasses.replace(case, numerics=num).build()
     assert model.projection.preconditioner_kind == "jacobi"
+
+
+def _incompressible_circle(precond):
+    from refmap.scenarios import get_case
+
+    case = get_case("circle", 16)
+    num = dataclasses.replace(case.numerics, fluid_model="incompressible",
+                              pressure_preconditioner=precond)
+    return case.replace(numerics=num, t_end=0.02, frames=2)
+
+
+def test_frames_report_the_pressure_solve():
+    """Every frame's diagnostics carry the pressure solve's CG iterations, relative residual
+    and convergence (the solve of a step from the frame's state, as its p_fluid)."""
+    from refmap.simulation import Simulation
+
+    sim = Simulation(_incompressible_circle("auto"), None, progress=False, pictures=False)
+    sim.run()
+    assert len(sim.rows) == 3
+    for row in sim.rows:
+        assert row["pressure_cg_converged"] == 1.0
+        assert 1 <= row["pressure_cg_iterations"] <= 20
+        assert row["pressure_cg_residual"] <= 1e-10
+
+
+def test_a_pressure_solve_that_stops_at_maxiter_warns_once():
+    """Cut CG at 2 iterations (the Jacobi preconditioner needs ~100 here): the run warns,
+    once, naming the residual, the tolerance, the preconditioner and the cure; the frames
+    record the failed solves."""
+    from refmap.simulation import Simulation
+
+    sim = Simulation(_incompressible_circle("jacobi"), None, progress=False, pictures=False)
+    sim.model.projection.maxiter = 2
+    with pytest.warns(RuntimeWarning, match=r"did not converge .* after 2 iterations .* "
+                      r"pressure_rtol = 1e-10 \(pressure_preconditioner = 'jacobi'\).*multigrid") as rec:
+        sim.run()
+    assert sum("did not converge" in str(w.message) for w in rec) == 1
+    assert all(row["pressure_cg_converged"] == 0.0 for row in sim.rows[1:])
+    assert all(row["pressure_cg_residual"] > 1e-10 for row in sim.rows[1:])

@@ -52,7 +52,7 @@ def cg(matvec, b, precond=None, x0=None, rtol=1e-10, atol=0.0, maxiter=200):
 
     Stops when ``|r| <= max(rtol |b|, atol)`` (Euclidean norms) or after ``maxiter``
     iterations.  Returns ``(x, info)`` with info = dict(iterations, residual (the final
-    |r|), converged).
+    |r|), relative_residual (|r| / |b|), converged).
     """
     precond = precond if precond is not None else (lambda r: r)
     x = jnp.zeros_like(b) if x0 is None else x0
@@ -79,7 +79,8 @@ def cg(matvec, b, precond=None, x0=None, rtol=1e-10, atol=0.0, maxiter=200):
 
     x, r, _, _, k = jax.lax.while_loop(cond, body, (x, r, p, rz, jnp.asarray(0)))
     res = jnp.sqrt(_dot(r, r))
-    return x, dict(iterations=k, residual=res, converged=res <= bound)
+    rel = res / jnp.maximum(jnp.sqrt(_dot(b, b)), 1e-300)
+    return x, dict(iterations=k, residual=res, relative_residual=rel, converged=res <= bound)
 
 
 def solve_spd(matvec, b, precond=None, rtol=1e-10, atol=0.0, maxiter=200):

@@ -814,7 +814,8 @@ class Model:
     def step(self, state: State, params: Params, dt, return_pressure: bool = False):
         """One step of size dt.  ``return_pressure`` (incompressible fluid only): return
         the projection's pressure (nx, ny) of this step instead of the new state (for
-        output, :meth:`output_fields`; plain CG, not differentiable)."""
+        output, :meth:`output_fields`; plain CG, not differentiable); ``"info"``: the
+        pressure and the CG solver's info (iterations, residual, converged)."""
         g = self.grid
         h = self.h
         sp = self.spacing
@@ -866,6 +867,8 @@ class Model:
                                                 weight=self._anchor_free,
                                                 source=self.volume_source(d, dt),
                                                 return_info=return_pressure)
+            if return_pressure == "info":
+                return projected[1], projected[2]
             if return_pressure:
                 return projected[1]
             v_new = projected
@@ -1025,6 +1028,14 @@ class Model:
             max_pressure=jnp.max(mean_p),
             min_pressure=jnp.min(mean_p),
         )
+        if self.projection is not None:
+            # the pressure solve of a step from this state (the same as the frame's
+            # p_fluid): a solve that stops at maxiter leaves a divergence above
+            # pressure_rtol, which refmap.simulation reports
+            info = self.frame_pressure(state, params)[1]
+            out.update(pressure_cg_iterations=info["iterations"],
+                       pressure_cg_residual=info["relative_residual"],
+                       pressure_cg_converged=info["converged"])
         if self.n_solids:
             inside_c = d["phic"] < 0
             Jk = d["J"]
@@ -1112,6 +1123,14 @@ class Model:
                 out.update(dims(self))
         return out
 
+    def frame_pressure(self, state: State, params: Params):
+        """The incompressible fluid's projection pressure for a step of the adaptive size
+        from ``state``, and the CG solver's info: what each output frame reports
+        (:meth:`output_fields`, and in :meth:`diagnostics` the iterations and whether CG
+        converged)."""
+        dt, _ = self.time_step(state, params)
+        return self.step(state, params, dt, return_pressure="info")
+
     def output_fields(self, state: State, params: Params):
         """Fields written to each frame (numpy-convertible), with physical names."""
         d = self.derived(state, params)
@@ -1122,8 +1141,7 @@ class Model:
             # the adaptive size from this state (its mean over the grid set to zero unless
             # an outflow fixes the level); it acts on fluid and solids alike, so the mean
             # stress's pressure gains it everywhere (each corner takes its bottom-left node's)
-            dt, _ = self.time_step(state, params)
-            p_fluid = self.step(state, params, dt, return_pressure=True)
+            p_fluid = self.frame_pressure(state, params)[0]
             if not self.projection.has_outflow:
                 p_fluid = p_fluid - jnp.mean(p_fluid)
             pc = jnp.pad(p_fluid, ((1, 0),) * self.ndim, mode="edge")

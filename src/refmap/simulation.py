@@ -97,6 +97,28 @@ def _flatten_diag(t, info, diag, wall):
     return row
 
 
+def _warn_pressure_solve(sim, row) -> None:
+    """Warn (once per run) when a frame's pressure solve stopped at its iteration limit
+    before reaching ``pressure_rtol``: the velocity is then divergence-free only to the
+    residual it reached (diagnostics.csv has ``pressure_cg_*`` for every frame)."""
+    if row.get("pressure_cg_converged", 1.0) or getattr(sim, "_warned_pressure", False):
+        return
+    import warnings
+
+    sim._warned_pressure = True
+    n = sim.case.numerics
+    warnings.warn(
+        f"case {sim.case.name!r}: the pressure solve did not converge at t = {row['t']:.6g}: "
+        f"CG stopped after {int(row['pressure_cg_iterations'])} iterations at relative "
+        f"residual {row['pressure_cg_residual']:.3g} > pressure_rtol = {n.pressure_rtol:g} "
+        f"(pressure_preconditioner = {n.pressure_preconditioner!r}), so the velocity is "
+        "divergence-free only to that residual.  Use pressure_preconditioner = 'multigrid' "
+        "(or the default 'auto' where a solid has an anchor), or raise numerics.pressure_rtol",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+
+
 class Simulation:
     """Run a case: ``Simulation(case, out_dir).run()``.
 
@@ -171,6 +193,7 @@ class Simulation:
         fields, diag, arrays = outs
         row = _flatten_diag(state.t, info, diag, wall)
         self.rows.append(row)
+        _warn_pressure_solve(self, row)
         if writer is not None:
             fields = {k: np.asarray(v) for k, v in fields.items()}
             small = {k: (self._array_dims[k], np.asarray(a)) for k, a in arrays.items()}
