@@ -296,7 +296,7 @@ def test_hydrostatic_rest_closed_box():
 def test_gradient_through_solve_central_differences(precond):
     """Reverse-mode derivatives of the projection with respect to the density (inside the
     operator) and the predicted velocity match central differences (relative 1e-5), with
-    the default and the multigrid preconditioner (whose coefficients are held out of the
+    the fast and the multigrid preconditioner (whose coefficients are held out of the
     derivative as the fast one's)."""
     nums = Numerics(fluid_model="incompressible", pressure_preconditioner=precond)
     m = _model(EDGES["walls"], n=(10, 8), numerics=nums)
