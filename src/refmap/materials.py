@@ -186,12 +186,6 @@ def _sym_matrix(upper: dict[tuple[int, int], jax.Array], d: int) -> jax.Array:
     return jnp.stack(rows, axis=-2)
 
 
-def _upper(upper: dict[tuple[int, int], jax.Array], d: int) -> tuple:
-    """The upper triangle of a symmetric tensor given by entries, in
-    :func:`sym_components`' order."""
-    return tuple(upper[a, b] for a in range(d) for b in range(a, d))
-
-
 def sym_components(sigma: jax.Array) -> tuple[jax.Array, ...]:
     """The independent components of a symmetric (..., d, d) stack, in the stencils' order.
 
@@ -210,6 +204,13 @@ def sym_from_components(components, dim: int) -> jax.Array:
             f"a symmetric {dim}x{dim} tensor has {len(pairs)} components, got {len(components)}"
         )
     return _sym_matrix(dict(zip(pairs, components, strict=True)), dim)
+
+
+def _sym2(s00: jax.Array, s01: jax.Array, s11: jax.Array) -> jax.Array:
+    """Assemble a symmetric (..., 2, 2) tensor from its three independent components."""
+    row0 = jnp.stack([s00, s01], axis=-1)
+    row1 = jnp.stack([s01, s11], axis=-1)
+    return jnp.stack([row0, row1], axis=-2)
 
 
 def register_law(cls: type) -> type:
@@ -339,24 +340,6 @@ class HyperelasticLaw(abc.ABC):
         The default is the autodiff route; built-in laws override it with a closed form.
         """
         return self.stress_autodiff(F)
-
-    def stress_entries(self, f) -> tuple:
-        """Cauchy stress from the entries of F: ``f[i][j]`` (d x d nested lists of arrays of
-        one shape) gives the ``d (d + 1) / 2`` independent components, in
-        :func:`sym_components`' order (2D ``xx, xy, yy``).
-
-        What the model's step calls: arrays of one component each vectorise, where a
-        ``(..., d, d)`` stack has a last axis of 2 or 3.  The default stacks ``f`` and takes
-        the components of :meth:`stress`; built-in laws write their closed form on the
-        entries and :meth:`stress` assembles it, so both give the same numbers."""
-        d = self.dim
-        F = jnp.stack([jnp.stack([f[i][j] for j in range(d)], axis=-1) for i in range(d)], axis=-2)
-        return sym_components(self.stress(F))
-
-    def _stress_from_entries(self, F: jax.Array) -> jax.Array:
-        """:meth:`stress` of a built-in law: its :meth:`stress_entries`, assembled."""
-        F = _as_float_stack(F, self.dim)
-        return sym_from_components(self.stress_entries(_entries(F)), self.dim)
 
     def stress_autodiff(self, F: jax.Array) -> jax.Array:
         """Cauchy stress from ``jax.grad`` of ``psi``: sigma = J^-1 (d psi/d F) F^T.
@@ -574,19 +557,19 @@ class NeoHookean(HyperelasticLaw):
         return neo_hookean_energy(F, {"G": self.G, "kappa": self.kappa})
 
     def stress(self, F: jax.Array) -> jax.Array:
-        return self._stress_from_entries(F)
-
-    def stress_entries(self, f) -> tuple:
+        F = _as_float_stack(F, self.dim)
         if self.dim == 3:  # sigma = G J^(-5/3) (B - tr(B)/3 I) + kappa (J - 1) I
+            f = _entries(F)
             J = _det3(f)
             B = _gram(f, rows=True)
             third_tr = (B[0, 0] + B[1, 1] + B[2, 2]) / 3.0
             c = jnp.cbrt(J)
             g = self.G / (J * c * c)
             p = self.kappa * (J - 1.0)
-            return _upper({k: g * (v - third_tr) + p if k[0] == k[1] else g * v
-                           for k, v in B.items()}, 3)
-        (F00, F01), (F10, F11) = f
+            return _sym_matrix(
+                {k: g * (v - third_tr) + p if k[0] == k[1] else g * v for k, v in B.items()}, 3
+            )
+        F00, F01, F10, F11 = _components(F)
         J = F00 * F11 - F01 * F10
         B00 = F00 * F00 + F01 * F01
         B01 = F00 * F10 + F01 * F11
@@ -595,7 +578,7 @@ class NeoHookean(HyperelasticLaw):
         c = jnp.cbrt(J)
         g = self.G / (J * c * c)  # G J^(-5/3)
         p = self.kappa * (J - 1.0)
-        return (g * (B00 - third_tr3) + p, g * B01, g * (B11 - third_tr3) + p)
+        return _sym2(g * (B00 - third_tr3) + p, g * B01, g * (B11 - third_tr3) + p)
 
 
 @register_law
@@ -635,21 +618,21 @@ class LogNeoHookean(HyperelasticLaw):
         return log_neo_hookean_energy(F, {"G": self.G, "kappa": self.kappa})
 
     def stress(self, F: jax.Array) -> jax.Array:
-        return self._stress_from_entries(F)
-
-    def stress_entries(self, f) -> tuple:
+        F = _as_float_stack(F, self.dim)
         if self.dim == 3:  # sigma = (G / J) (B - I) + kappa (J - 1) I
+            f = _entries(F)
             J = _det3(f)
             B = _gram(f, rows=True)
             g = self.G / J
             p = self.kappa * (J - 1.0)
-            return _upper({k: g * (v - 1.0) + p if k[0] == k[1] else g * v
-                           for k, v in B.items()}, 3)
-        (F00, F01), (F10, F11) = f
+            return _sym_matrix(
+                {k: g * (v - 1.0) + p if k[0] == k[1] else g * v for k, v in B.items()}, 3
+            )
+        F00, F01, F10, F11 = _components(F)
         J = F00 * F11 - F01 * F10
         g = self.G / J
         p = self.kappa * (J - 1.0)
-        return (
+        return _sym2(
             g * (F00 * F00 + F01 * F01 - 1.0) + p,
             g * (F00 * F10 + F01 * F11),
             g * (F10 * F10 + F11 * F11 - 1.0) + p,
@@ -717,10 +700,9 @@ class StVenantKirchhoff(HyperelasticLaw):
         return svk_energy(F, {"mu": self.mu, "lam": self.lam})
 
     def stress(self, F: jax.Array) -> jax.Array:
-        return self._stress_from_entries(F)
-
-    def stress_entries(self, f) -> tuple:
+        F = _as_float_stack(F, self.dim)
         if self.dim == 3:  # sigma = J^-1 F S F^T, S = lam tr(E) I + 2 mu E
+            f = _entries(F)
             J = _det3(f)
             C = _gram(f, rows=False)
             E = {k: 0.5 * (v - 1.0) if k[0] == k[1] else 0.5 * v for k, v in C.items()}
@@ -740,8 +722,8 @@ class StVenantKirchhoff(HyperelasticLaw):
                 for a in range(3)
                 for b in range(a, 3)
             }
-            return _upper(sigma, 3)
-        (F00, F01), (F10, F11) = f
+            return _sym_matrix(sigma, 3)
+        F00, F01, F10, F11 = _components(F)
         J = F00 * F11 - F01 * F10
         E00 = 0.5 * (F00 * F00 + F10 * F10 - 1.0)
         E01 = 0.5 * (F00 * F01 + F10 * F11)
@@ -756,7 +738,7 @@ class StVenantKirchhoff(HyperelasticLaw):
         A10 = F10 * S00 + F11 * S01
         A11 = F10 * S01 + F11 * S11
         inv_J = 1.0 / J
-        return (
+        return _sym2(
             (A00 * F00 + A01 * F01) * inv_J,
             (A00 * F10 + A01 * F11) * inv_J,
             (A10 * F10 + A11 * F11) * inv_J,

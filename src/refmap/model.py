@@ -38,7 +38,6 @@ import numpy as np
 from refmap import blend, extrapolation, levelset, narrowband
 from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
-from refmap.materials import sym_from_components
 from refmap.operators import (
     SYM_COMPONENTS,
     SYM_PAIRS,
@@ -147,28 +146,22 @@ class StepInfo(NamedTuple):
     limit: jax.Array  # index into LIMIT_NAMES
 
 
-def _solid_stresses(laws, f):
-    """Stress components of every solid and the reference densities (N,).
+def _solid_stresses(laws, F):
+    """Stress of every solid, (N, ..., 2, 2), and the reference densities (N,).
 
-    ``f``: the entries ``f[i][j]`` (N, ...) of every solid's F; returns the ``d (d + 1) /
-    2`` components (N, ...) in :data:`refmap.operators.SYM_PAIRS` order (through each
-    law's :meth:`~refmap.materials.HyperelasticLaw.stress_entries`: one array per
-    component, not a (..., d, d) stack whose last axis of 2 or 3 does not vectorise).
     Solids sharing one law class are stacked into one pytree and processed with ``vmap``
     (one traced code path whatever their number); mixed classes fall back to a loop.
     """
-    dtype = f[0][0].dtype
     if len({type(law) for law in laws}) == 1 and len(laws) > 1:
         try:
             stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws)
         except (ValueError, TypeError):
             stacked = None
         if stacked is not None:
-            sig = jax.vmap(lambda law, f: law.stress_entries(f))(stacked, f)
-            return tuple(sig), jnp.asarray(stacked.rho0, dtype=dtype)
-    per = [law.stress_entries([[fab[k] for fab in row] for row in f]) for k, law in enumerate(laws)]
-    sig = tuple(jnp.stack(comp) for comp in zip(*per, strict=True))
-    return sig, jnp.stack([jnp.asarray(law.rho0, dtype=dtype) for law in laws])
+            sig = jax.vmap(lambda law, f: law.stress(f))(stacked, F)
+            return sig, jnp.asarray(stacked.rho0, dtype=F.dtype)
+    sig = jnp.stack([law.stress(F[k]) for k, law in enumerate(laws)])
+    return sig, jnp.stack([jnp.asarray(law.rho0, dtype=F.dtype) for law in laws])
 
 
 def solid_fractions(H):
@@ -199,15 +192,15 @@ def _stress_keys(components, nd: int) -> dict:
 
 
 def _det_adjugate(dxi):
-    """Determinant and adjugate of the matrix A with A[a][b] = ``dxi[a][b]``, the adjugate
-    as entries ``adj[a][b]`` (nested lists of arrays).
+    """Determinant and adjugate (..., d, d) of the matrix A with A[a][b] = ``dxi[a][b]``.
 
     2D: the thesis's closed form (bit for bit the original arithmetic); 3D: cofactors.
     """
     if len(dxi) == 2:
         (Xx, Xy), (Yx, Yy) = dxi
         det = Xx * Yy - Xy * Yx
-        return det, [[Yy, -Xy], [-Yx, Xx]]
+        adj = jnp.stack([jnp.stack([Yy, -Xy], axis=-1), jnp.stack([-Yx, Xx], axis=-1)], axis=-2)
+        return det, adj
     A = dxi
     # cofactor C[i][j] = (-1)^(i+j) minor(i, j); adj = C^T
     C = [[None] * 3 for _ in range(3)]
@@ -217,7 +210,8 @@ def _det_adjugate(dxi):
             j1, j2 = (j + 1) % 3, (j + 2) % 3
             C[i][j] = A[i1][j1] * A[i2][j2] - A[i1][j2] * A[i2][j1]
     det = A[0][0] * C[0][0] + A[0][1] * C[0][1] + A[0][2] * C[0][2]
-    return det, [[C[j][i] for j in range(3)] for i in range(3)]
+    adj = jnp.stack([jnp.stack([C[j][i] for j in range(3)], axis=-1) for i in range(3)], axis=-2)
+    return det, adj
 
 
 class Model:
@@ -746,20 +740,15 @@ class Model:
         det, adj = _det_adjugate(dxi)  # det(grad xi) = 1 / J; F = (grad xi)^-1 = adj / det
         valid = (phic < n.stress_band * h) & (det > 1e-12)
         safe_det = jnp.where(valid, det, 1.0)
-        # F and the stress entry by entry: each component one array (a (..., d, d) stack's
-        # last axis of 2 or 3 does not vectorise; the arithmetic per entry is the same)
-        f = [[jnp.where(valid, adj[a][b] / safe_det, float(a == b)) for b in range(nd)]
-             for a in range(nd)]
-        sig, rho0 = _solid_stresses(params.laws, f)
-        sig = tuple(jnp.where(valid, c, 0.0) for c in sig)
+        F = adj / safe_det[..., None, None]
+        F = jnp.where(valid[..., None, None], F, jnp.eye(nd))
+        sig, rho0 = _solid_stresses(params.laws, F)
+        sig = jnp.where(valid[..., None, None], sig, 0.0)
         rho0 = rho0.reshape((-1,) + (1,) * nd)
         rho_s = jnp.where(valid, rho0 * det, rho0)
 
-        s_mix = [wf_c * sf + jnp.sum(ws_c * c, axis=0) for sf, c in zip(s_f, sig, strict=True)]
-        # the stacked forms, for the diagnostics, the output and the band-force transfer
-        # (dropped by XLA where nothing reads them)
-        F = jnp.stack([jnp.stack(row, axis=-1) for row in f], axis=-2)
-        sig = sym_from_components(sig, nd)
+        s_mix = [wf_c * sf + jnp.sum(ws_c * sig[..., a, b], axis=0)
+                 for sf, (a, b) in zip(s_f, SYM_PAIRS[nd], strict=True)]
         rho = wf_n * state.rho_f + jnp.sum(ws_n * node_average(rho_s, nd), axis=0)
         out.update(
             _stress_keys(s_mix, nd), rho=rho, F=F, J=jnp.where(valid, 1.0 / safe_det, 1.0),
