@@ -291,3 +291,27 @@ def test_a_pressure_solve_that_stops_at_maxiter_warns_once():
     assert sum("did not converge" in str(w.message) for w in rec) == 1
     assert all(row["pressure_cg_converged"] == 0.0 for row in sim.rows[1:])
     assert all(row["pressure_cg_residual"] > 1e-10 for row in sim.rows[1:])
+
+
+def test_refmap_info_reports_the_pressure_solves(tmp_path):
+    """``refmap info`` sums up the frames' pressure solves: iterations, largest residual, and
+    how many frames did not converge (none with the default; every one after t = 0 with CG
+    cut at 2 Jacobi iterations)."""
+    from refmap.postprocess import format_info, run_info
+    from refmap.simulation import Simulation
+
+    Simulation(_incompressible_circle("auto"), tmp_path / "ok", progress=False,
+               pictures=False).run()
+    ps = run_info(tmp_path / "ok")["pressure_solve"]
+    assert ps["frames"] == 3 and ps["not_converged"] == 0 and 1 <= ps["iterations_max"] <= 20
+    assert "NOT converged" not in format_info(run_info(tmp_path / "ok"))
+
+    sim = Simulation(_incompressible_circle("jacobi"), tmp_path / "cut", progress=False,
+                     pictures=False)
+    sim.model.projection.maxiter = 2
+    with pytest.warns(RuntimeWarning, match="did not converge"):
+        sim.run()
+    info = run_info(tmp_path / "cut")
+    assert info["pressure_solve"]["iterations_max"] == 2
+    assert info["pressure_solve"]["not_converged"] >= 2
+    assert "NOT converged in" in format_info(info)

@@ -242,6 +242,15 @@ def run_info(run_dir) -> dict:
                 if rc is not None:
                     cons[name] = rc
         info["conservation"] = cons
+        if "pressure_cg_iterations" in diag:
+            # incompressible fluid: each frame's pressure solve (refmap.model.Model.diagnostics)
+            it = diag["pressure_cg_iterations"].astype(float)
+            ok = diag["pressure_cg_converged"].astype(float) > 0.5
+            info["pressure_solve"] = {
+                "frames": len(diag), "iterations_mean": float(it.mean()),
+                "iterations_max": int(it.max()), "not_converged": int((~ok).sum()),
+                "residual_max": float(diag["pressure_cg_residual"].astype(float).max()),
+            }
     return info
 
 
@@ -299,6 +308,13 @@ def format_info(info: dict) -> str:
             f"{name:<11s} relative change {rc['relative_change']:+.3e} "
             f"({100 * rc['relative_change']:+.3g} %; {rc['first']:.10g} -> {rc['last']:.10g})"
         )
+    ps = info.get("pressure_solve")
+    if ps:
+        bad = (f"; NOT converged in {ps['not_converged']} of {ps['frames']} frames"
+               if ps["not_converged"] else "")
+        lines.append(f"pressure    CG iterations mean {ps['iterations_mean']:.3g}, max "
+                     f"{ps['iterations_max']}, largest relative residual {ps['residual_max']:.2g} "
+                     f"(the frames' solves){bad}")
     ck = info.get("checkpoint")
     if ck:
         lines.append(f"checkpoint  frame {ck['frame_index']}, t = {_num(ck['t'])}, step {ck['step']} "
