@@ -1,7 +1,7 @@
 """The incompressible projection's preconditioners: CG iterations and step time per scenario.
 
 For each scenario and size the case is built with ``fluid_model = "incompressible"``,
-moved ``--warm`` steps (with the default preconditioner), and then, from that one state,
+moved ``--warm`` steps (with the fast preconditioner), and then, from that one state,
 for each ``pressure_preconditioner`` ("fast", "jacobi", "multigrid"):
 
 * the CG iterations of the projection in each of the next ``--steps`` steps (mean and

@@ -1010,8 +1010,11 @@ class Model:
             out.append(mean)
         return tuple(out)
 
-    def diagnostics(self, state: State, params: Params):
-        """Scalar diagnostics and per-solid numbers at the current state (jit-able)."""
+    def diagnostics(self, state: State, params: Params, solve=None):
+        """Scalar diagnostics and per-solid numbers at the current state (jit-able).
+
+        ``solve``: the :meth:`frame_pressure` of this state, ``(p, info)``, when the caller
+        has it (incompressible fluid; solved here otherwise)."""
         g = self.grid
         nd = self.ndim
         dA = g.cell_area if nd == 2 else g.cell_volume  # "area" below is the d-dim. measure
@@ -1032,7 +1035,9 @@ class Model:
             # the pressure solve of a step from this state (the same as the frame's
             # p_fluid): a solve that stops at maxiter leaves a divergence above
             # pressure_rtol, which refmap.simulation reports
-            info = self.frame_pressure(state, params)[1]
+            if solve is None:
+                solve = self.frame_pressure(state, params)
+            info = solve[1]
             out.update(pressure_cg_iterations=info["iterations"],
                        pressure_cg_residual=info["relative_residual"],
                        pressure_cg_converged=info["converged"])
@@ -1131,8 +1136,9 @@ class Model:
         dt, _ = self.time_step(state, params)
         return self.step(state, params, dt, return_pressure="info")
 
-    def output_fields(self, state: State, params: Params):
-        """Fields written to each frame (numpy-convertible), with physical names."""
+    def output_fields(self, state: State, params: Params, solve=None):
+        """Fields written to each frame (numpy-convertible), with physical names.
+        ``solve`` as in :meth:`diagnostics`."""
         d = self.derived(state, params)
         p_fluid = params.fluid.lambda_f * (state.rho_f / params.fluid.rho0 - 1.0)
         pressure = self._mean_pressure(d)
@@ -1141,7 +1147,9 @@ class Model:
             # the adaptive size from this state (its mean over the grid set to zero unless
             # an outflow fixes the level); it acts on fluid and solids alike, so the mean
             # stress's pressure gains it everywhere (each corner takes its bottom-left node's)
-            p_fluid = self.frame_pressure(state, params)[0]
+            if solve is None:
+                solve = self.frame_pressure(state, params)
+            p_fluid = solve[0]
             if not self.projection.has_outflow:
                 p_fluid = p_fluid - jnp.mean(p_fluid)
             pc = jnp.pad(p_fluid, ((1, 0),) * self.ndim, mode="edge")

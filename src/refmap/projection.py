@@ -284,7 +284,9 @@ class Projection:
         )
         self.fast = SeparableSolver.on_grid(g, kinds)
         self.fast_definite = any(k != "periodic" and "odd" in k for k in kinds)
-        self.hierarchy = Hierarchy.build(g.shape(), self.periodic)
+        # the multigrid cycle's levels (static sizes), only where it is used
+        self.hierarchy = (Hierarchy.build(g.shape(), self.periodic)
+                          if preconditioner == "multigrid" else None)
 
     # ------------------------------------------------------------------ operators
     def _edge(self, name, t):

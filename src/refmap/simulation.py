@@ -101,7 +101,7 @@ def _warn_pressure_solve(sim, row) -> None:
     """Warn (once per run) when a frame's pressure solve stopped at its iteration limit
     before reaching ``pressure_rtol``: the velocity is then divergence-free only to the
     residual it reached (diagnostics.csv has ``pressure_cg_*`` for every frame)."""
-    if row.get("pressure_cg_converged", 1.0) or getattr(sim, "_warned_pressure", False):
+    if row.get("pressure_cg_converged", 1.0) or sim._warned_pressure:
         return
     import warnings
 
@@ -175,13 +175,16 @@ class Simulation:
         model = self.model
 
         def outputs(state, params):  # one compilation for everything a frame writes
+            # the incompressible fluid's pressure solve, once for the fields and diagnostics
+            solve = model.frame_pressure(state, params) if model.projection is not None else None
             return (
-                model.output_fields(state, params),
-                model.diagnostics(state, params),
+                model.output_fields(state, params, solve),
+                model.diagnostics(state, params, solve),
                 model.frame_arrays(state, params),
             )
 
         self._outputs = jax.jit(outputs)
+        self._warned_pressure = False  # a non-converged pressure solve is reported once
         self._array_dims = model.frame_array_dims()
         self.state = None
         self.rows: list[dict] = []

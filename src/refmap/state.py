@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from refmap.blend import check_kernel
+from refmap.projection import PRECONDITIONERS
 
 
 def _register(cls, data):
@@ -262,7 +263,7 @@ class Numerics:
             "viscosity": ("explicit", "implicit"),
             "viscosity_preconditioner": ("jacobi", "fast"),
             "fluid_model": ("compressible", "incompressible"),
-            "pressure_preconditioner": ("auto", "fast", "jacobi", "multigrid"),
+            "pressure_preconditioner": ("auto",) + PRECONDITIONERS,
             "band_force": ("local", "solid"),
             "fluid_mass": ("advected", "conserved"),
         }
