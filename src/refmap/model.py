@@ -34,8 +34,9 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
-from refmap import blend, extrapolation, levelset, narrowband
+from refmap import blend, extrapolation, levelset, narrowband, solid_tiles
 from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
 from refmap.operators import (
@@ -71,6 +72,11 @@ BAND_WINDOW_FRACTION = 0.6
 # nodes added to the band box's extent at t = 0 for the window's size (the window follows
 # the body; the slack is for its deformation, beyond which the step sweeps the full grid)
 BAND_WINDOW_SLACK = 8
+# band_sweeps = "auto": compute each solid's stress, blend weights and density on the tiles
+# that hold it (refmap.solid_tiles) only when its listed tiles are at most this fraction of
+# the grid's (a tile's window of T + 2 nodes a side and the sum into the grid cost more per
+# node than the full-grid computation; docs/benchmarks.md, "Solids' stress on tiles")
+SOLID_TILE_FRACTION = 0.5
 
 LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max", "fixed")
 
@@ -288,6 +294,40 @@ class Model:
                 inside0 = [np.asarray(self.phi0(k, self._xi0[k])) < 0 for k in range(self.n_solids)]
             self.bc.glue(self._xi0 - np.stack(Xn), np.stack(inside0))
         self.band_capacity = self._initial_band_capacity()
+        self.solid_tiles = self._initial_solid_tiles()
+
+    def _initial_solid_tiles(self):
+        """``(tile, blend capacities, stress capacities)`` for computing each solid's
+        stress, weights and density on its tiles (:mod:`refmap.solid_tiles`), or None (the
+        full grid).  A solid lists the tiles within its blend's reach
+        (:func:`refmap.solid_tiles.cutoff`) for its weights and, a subset, those within
+        ``stress_band`` for its stress.  Each list's capacities are a ladder (the work is
+        proportional to the capacity): ``BAND_TIGHT`` times the most tiles a solid holds
+        at t = 0, plus 8, then ``band_capacity`` times them plus 8; the step takes the
+        first rung that holds every solid's tiles, and the full grid past the last.  None
+        with ``band_sweeps = "grid"`` or without solids, and with ``"auto"`` when the blend
+        list's last capacity is more than ``SOLID_TILE_FRACTION`` of the grid's tiles."""
+        n = self.numerics
+        if n.band_sweeps == "grid" or not self.solids:
+            return None
+        nd = self.ndim
+        tile = (extrapolation.TILE_TARGET[nd],) * nd
+        cuts = (solid_tiles.cutoff(n.blend, n.blur_width * self.h), n.stress_band * self.h)
+        with jax.ensure_compile_time_eval():
+            phi = jnp.stack([jnp.minimum(jnp.asarray(self.phi0(k, self._xi0[k])), n.phi_max * self.h)
+                             for k in range(self.n_solids)])
+            phip = self.bc.pad_linear(phi)[self._core(1)]
+            counts = [np.asarray(jnp.sum(solid_tiles.tile_flags(phip, cut, tile),
+                                         axis=tuple(range(1, nd + 1)))).tolist() for cut in cuts]
+        total = math.prod(solid_tiles.n_tiles(self.grid.shape(), tile))
+        ladders = []
+        for c in counts:
+            capacity = solid_tiles.capacity_for(c, n.band_capacity, total)
+            tight = min(solid_tiles.capacity_for(c, BAND_TIGHT, total), capacity)
+            ladders.append((tight, capacity))
+        if n.band_sweeps == "auto" and ladders[0][1] > SOLID_TILE_FRACTION * total:
+            return None
+        return tile, ladders[0], ladders[1]
 
     def _initial_band_capacity(self):
         """Static number of band tiles per solid (``Numerics.band_sweeps = "band"``).
@@ -690,10 +730,8 @@ class Model:
 
         ``viscous=False`` leaves the fluid's viscous stress out of the mixed stress (the
         implicit viscous step adds it separately, :mod:`refmap.viscosity`)."""
-        h = self.h
         sp = self.spacing
         nd = self.ndim
-        n = self.numerics
         fl = params.fluid
         bc = self.bc
         core = self._core(1)
@@ -728,14 +766,33 @@ class Model:
             return out
 
         phip = bc.pad_linear(state.phi)[core]
+        xip = bc.pad_affine(state.xi)[core]
+        f = self._solids_full(s_f, state.rho_f, state.phi, phip, xip, params)
+        s_mix, rho, wf_c, wf_n = f.pop("mixed")
+        if self.solid_tiles is not None:
+            # the mixed fields from each solid's tiles (the per-solid fields stay the
+            # full-grid ones, for diagnostics and output; inside the step nothing reads them
+            # in the default configuration and XLA drops them)
+            s_mix, rho, wf_c, wf_n = self._mixed_on_tiles(
+                s_f, state.rho_f, phip, xip, params,
+                lambda: self._solids_full(s_f, state.rho_f, state.phi, phip, xip, params)["mixed"])
+        out.update(_stress_keys(s_mix, nd), rho=rho, wf_c=wf_c, wf_n=wf_n, **f)
+        return out
+
+    def _solids_full(self, s_f, rho_f, phi, phip, xip, params):
+        """Every solid's fields of :meth:`derived` on the whole grid, and under ``"mixed"``
+        the mixed stress components, density and fluid fractions made from them."""
+        h = self.h
+        sp = self.spacing
+        nd = self.ndim
+        n = self.numerics
         phic = corner_average(phip, nd)
         w = n.blur_width * h
         Hc = blend.heaviside(phic, n.blend, w)
-        Hn = blend.heaviside(state.phi, n.blend, w)
+        Hn = blend.heaviside(phi, n.blend, w)
         ws_c, wf_c = solid_fractions(Hc)
         ws_n, wf_n = solid_fractions(Hn)
 
-        xip = bc.pad_affine(state.xi)[core]
         dxi = [grad_corner(xip[:, a], *sp) for a in range(nd)]  # dxi[a][b] = d xi_a / d x_b
         det, adj = _det_adjugate(dxi)  # det(grad xi) = 1 / J; F = (grad xi)^-1 = adj / det
         valid = (phic < n.stress_band * h) & (det > 1e-12)
@@ -749,13 +806,55 @@ class Model:
 
         s_mix = [wf_c * sf + jnp.sum(ws_c * sig[..., a, b], axis=0)
                  for sf, (a, b) in zip(s_f, SYM_PAIRS[nd], strict=True)]
-        rho = wf_n * state.rho_f + jnp.sum(ws_n * node_average(rho_s, nd), axis=0)
-        out.update(
-            _stress_keys(s_mix, nd), rho=rho, F=F, J=jnp.where(valid, 1.0 / safe_det, 1.0),
-            valid=valid, sigma_s=sig, Hc=Hc, Hn=Hn, ws_c=ws_c, ws_n=ws_n, wf_c=wf_c, wf_n=wf_n,
-            phic=phic,
+        rho = wf_n * rho_f + jnp.sum(ws_n * node_average(rho_s, nd), axis=0)
+        return dict(
+            mixed=(s_mix, rho, wf_c, wf_n), F=F, J=jnp.where(valid, 1.0 / safe_det, 1.0),
+            valid=valid, sigma_s=sig, Hc=Hc, Hn=Hn, ws_c=ws_c, ws_n=ws_n, phic=phic,
         )
-        return out
+
+    def _mixed_on_tiles(self, s_f, rho_f, phip, xip, params, full):
+        """The mixed stress components, density and fluid fractions of :meth:`derived`
+        summed from each solid's tiles (:mod:`refmap.solid_tiles`); ``full()`` (the same
+        four from the full grid) where a solid holds more tiles than the static capacity."""
+        n = self.numerics
+        nd = self.ndim
+        tile, caps_b, caps_s = self.solid_tiles
+        cut = solid_tiles.cutoff(n.blend, n.blur_width * self.h)
+        least = solid_tiles.window_min(lax.stop_gradient(phip), tile)  # which tiles: no derivative
+        flags_b, flags_s = least < cut, least < n.stress_band * self.h
+        cshape = tuple(s + 1 for s in self.grid.shape())
+        nshape = self.grid.shape()
+        rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=rho_f.dtype) for law in params.laws])
+
+        def tiled(cap_b, cap_s):
+            def run(_):
+                lb = solid_tiles.Listed(flags_b, cap_b)
+                wc, wn = solid_tiles.blend_contributions(
+                    solid_tiles.gather(phip, lb, tile, jnp.inf), rho0, self.h, n)
+                ls = solid_tiles.Listed(flags_s, cap_s)
+                sig, drho = solid_tiles.stress_contributions(
+                    solid_tiles.gather(phip, ls, tile, jnp.inf), solid_tiles.gather(xip, ls, tile, 0.0),
+                    params.laws, _solid_stresses, self.h, self.spacing, n)
+                Tc = solid_tiles.scatter_add(wc, lb, tile, cshape)[0]
+                Bn, Tn = solid_tiles.scatter_add(wn, lb, tile, nshape)
+                A = solid_tiles.scatter_add(sig, ls, tile, cshape)
+                Bn = Bn + solid_tiles.scatter_add(drho, ls, tile, nshape)[0]
+                s_mix, rho, wf_c, wf_n = solid_tiles.mix(s_f, rho_f, tuple(A), Tc, Bn, Tn)
+                return tuple(s_mix), rho, wf_c, wf_n
+            return run
+
+        def dense(_):
+            s_mix, rho, wf_c, wf_n = full()
+            return tuple(s_mix), rho, wf_c, wf_n
+
+        def rung(flags, caps):  # the first capacity that holds every solid's tiles
+            most = jnp.max(jnp.sum(flags, axis=tuple(range(1, nd + 1)), dtype=jnp.int32))
+            return jnp.sum(jnp.asarray(caps, dtype=jnp.int32) < most, dtype=jnp.int32)
+
+        level = jnp.maximum(rung(flags_b, caps_b), rung(flags_s, caps_s))  # past the last: full grid
+        branches = [tiled(b, c) for b, c in zip(caps_b, caps_s, strict=True)] + [dense]
+        s_mix, rho, wf_c, wf_n = lax.switch(level, branches, None)
+        return list(s_mix), rho, wf_c, wf_n
 
     def conserve_fluid_mass(self, rho_f, wf_old, rho_new, phi_new):
         """``rho_new`` shifted so that the fluid's mass ``sum(w_f rho_f)`` is the one before

@@ -1,0 +1,214 @@
+"""Each solid's stress, blend weights and density on the tiles that hold it (issue 14).
+
+:meth:`refmap.model.Model.derived` mixes the fluid's stress with every solid's: at each
+corner ``sigma = w_f sigma_f + sum_k w_k sigma_k`` with the solid fractions ``w_k = 1 - H_k``
+of the blend (renormalised where they sum past 1), and at each node the density likewise.
+Computed on the whole grid, every solid costs a full grid of erf weights, map gradients,
+deformation gradients and constitutive stresses, although a small disc touches a few per
+cent of it: in the suspension at 256^2 this was the largest cost of an added disc
+(docs/benchmarks.md, "Where a many-disc step goes now").
+
+A solid's fraction ``1 - H(phi)`` is exactly zero beyond a distance :func:`cutoff` of its
+interface (erf: ``erf(x)`` rounds to 1 for ``x > 5.93`` in float64, so ``6 w``; the sine
+kernel: its half-width), and its stress is zero where its fraction is.  So each solid's
+contributions are computed only on the tiles (``T`` nodes a side, as the band sweeps'
+:data:`refmap.extrapolation.TILE_TARGET`) whose corners or nodes lie within that distance,
+and added into the grid: per corner the sums ``A_ab = sum_k (1 - H_k) sigma_k,ab`` and
+``T_c = sum_k (1 - H_k)``, per node ``B = sum_k (1 - H_k) avg(rho_k)`` and ``T_n``.  The
+renormalisation ``1 / max(T, 1)`` is common to all solids at a point, so the mixed fields
+follow from these sums (:func:`mix`): where at most two solids overlap and their fractions
+sum below 1 (everywhere but deep overlaps), the arithmetic is the full-grid one, operation
+for operation, and the results agree to round-off (tested in ``tests/test_solid_tiles.py``).
+
+Layout.  Everything works in the index space of the fields padded with one ghost layer
+(``(nx + 2, ny + 2)``; periodic axes already wrapped by the padding): corner ``i`` lies between
+padded nodes ``i`` and ``i + 1``, node ``i`` is padded node ``i + 1``.  Tile ``p`` (per axis)
+computes the corners and nodes ``p T .. p T + T - 1`` from the padded nodes
+``p T .. p T + T + 1`` (a window of ``T + 2``), so tiles do not depend on each other and need
+no halo exchange.  A solid's tiles are listed in a static number of slots, ``capacity``;
+when a solid's region outgrows it, the caller falls back on the full-grid computation for
+that step (same result).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from refmap import blend
+from refmap.operators import corner_average, grad_corner, node_average
+
+#: erf(x) is exactly 1.0 in float64 for x >= 5.9216 (checked in the tests): 1 - H = 0 there
+ERF_ZERO = 6.0
+
+
+def cutoff(kernel: str, width):
+    """Distance from the interface beyond which a solid's fraction ``1 - H`` is exactly 0."""
+    return (ERF_ZERO if blend.check_kernel(kernel) == "erf" else 1.0) * width
+
+
+def n_tiles(shape, tile) -> tuple[int, ...]:
+    """Tiles per axis: enough to hold the ``n + 1`` corners of an axis of ``n`` nodes."""
+    return tuple(-(-(n + 1) // t) for n, t in zip(shape, tile, strict=True))
+
+
+def _pad_high(a, size, fill, nd):
+    """``a`` padded with ``fill`` at the high end of its last ``nd`` axes to ``size``."""
+    lead = a.ndim - nd
+    widths = [(0, 0, 0)] * lead + [(0, s - a.shape[lead + i], 0) for i, s in enumerate(size)]
+    return lax.pad(a, jnp.asarray(fill, dtype=a.dtype), widths)
+
+
+def window_min(phip, tile):
+    """(S, ntx, nty[, ntz]): the least value of the padded level sets ``phip`` (S, nx + 2,
+    ny + 2[, nz + 2]) in each tile's window.  One axis at a time (a separable minimum: a
+    window of ``(T + 2)^d`` at once ran 8 times slower on a CPU)."""
+    nd = len(tile)
+    shape = tuple(s - 2 for s in phip.shape[-nd:])
+    nt = n_tiles(shape, tile)
+    m = _pad_high(phip, tuple(k * t + 2 for k, t in zip(nt, tile, strict=True)), jnp.inf, nd)
+    lead = m.ndim - nd
+    for a in range(nd):
+        win = [1] * m.ndim
+        stride = [1] * m.ndim
+        win[lead + a] = tile[a] + 2
+        stride[lead + a] = tile[a]
+        m = lax.reduce_window(m, jnp.asarray(jnp.inf, m.dtype), lax.min, tuple(win), tuple(stride), "VALID")
+    return m
+
+
+def tile_flags(phip, cut, tile):
+    """(S, ntx, nty[, ntz]): the tiles whose window of padded nodes holds one with
+    ``phip < cut`` (``phip`` (S, nx + 2, ny + 2[, nz + 2]), the level sets padded with one
+    ghost layer)."""
+    return window_min(phip, tile) < cut
+
+
+def capacity_for(counts, factor: float, total: int) -> int:
+    """Static slots per solid: ``factor`` times the most tiles a solid holds, plus 8, at most
+    every tile of the grid."""
+    return min(int(math.ceil(factor * int(max(counts, default=0)))) + 8, total)
+
+
+class Listed:
+    """The listed tiles of every solid: ``pos`` per axis (S, cap), ``slot`` (S, cap) True
+    where the slot holds a tile, ``count`` (S,) the tiles each solid needs (may exceed cap)."""
+
+    def __init__(self, flags, capacity: int):
+        nd = flags.ndim - 1
+        nt = flags.shape[1:]
+        stride = [math.prod(nt[a + 1:]) for a in range(nd)]
+        flat = flags.reshape(flags.shape[0], -1)
+        self.count = jnp.sum(flat, axis=1, dtype=jnp.int32)
+        k = jax.vmap(lambda m: jnp.nonzero(m, size=capacity, fill_value=0)[0])(flat).astype(jnp.int32)
+        self.slot = jnp.arange(capacity, dtype=jnp.int32)[None] < self.count[:, None]
+        self.pos = tuple((k // stride[a]) % nt[a] for a in range(nd))
+        # flat tile index of each slot; past the last tile for an empty slot (dropped)
+        self.flat = jnp.where(self.slot, k, math.prod(nt))
+        self.nt = nt
+
+
+def gather(a, listed: Listed, tile, fill):
+    """Each solid's windows of a padded field ``a`` (S, ..., nx + 2, ny + 2[, nz + 2]):
+    (S, cap, ..., T + 2, T + 2[, T + 2]); beyond the high edge the value is ``fill``."""
+    nd = len(tile)
+    a = _pad_high(a, tuple(k * t + 2 for k, t in zip(listed.nt, tile, strict=True)), fill, nd)
+    size = tuple(t + 2 for t in tile)
+    lead = a.shape[1:-nd]
+
+    def one(a_k, *p):
+        start = (jnp.int32(0),) * len(lead) + tuple(q * t for q, t in zip(p, tile, strict=True))
+        return lax.dynamic_slice(a_k, start, lead + size)
+
+    return jax.vmap(lambda a_k, *p: jax.vmap(lambda *q: one(a_k, *q))(*p))(a, *listed.pos)
+
+
+def scatter_add(values, listed: Listed, tile, shape):
+    """Sum the tile values (S, cap, C, T, T[, T]) of every solid into a grid: (C, *shape),
+    ``shape`` at most the tiles' span (the corners or the nodes of the grid)."""
+    nd = len(tile)
+    nt = listed.nt
+    C = values.shape[2]
+    buf = jnp.zeros((math.prod(nt), C) + tuple(tile), dtype=values.dtype)
+    buf = buf.at[listed.flat.reshape(-1)].add(values.reshape((-1, C) + tuple(tile)), mode="drop")
+    buf = buf.reshape(tuple(nt) + (C,) + tuple(tile))
+    # (nt0, nt1, C, T0, T1) -> (C, nt0, T0, nt1, T1) -> (C, nt0 T0, nt1 T1)
+    perm = (nd,) + tuple(x for a in range(nd) for x in (a, nd + 1 + a))
+    buf = jnp.transpose(buf, perm).reshape((C,) + tuple(k * t for k, t in zip(nt, tile, strict=True)))
+    return buf[(slice(None),) + tuple(slice(0, s) for s in shape)]
+
+
+def blend_contributions(phit, rho0, h, numerics):
+    """The blend's part of :func:`mix`'s sums on each solid's tiles (every corner and node
+    with a fraction): ``phit`` (S, cap, W...) with ``W = T + 2``, ``rho0`` (S,) the
+    reference densities.  Returns corner values (S, cap, 1, T...), ``1 - H``, and node
+    values (S, cap, 2, T...): ``(1 - H) rho0`` and ``1 - H``."""
+    nd = phit.ndim - 2
+    n = numerics
+    w = n.blur_width * h
+    own = (Ellipsis,) + (slice(0, -1),) * nd  # the tile's own T corners of its T + 1
+    inner = (Ellipsis,) + (slice(1, -1),) * nd  # its T nodes
+    wc = 1.0 - blend.heaviside(corner_average(phit, nd)[own], n.blend, w)
+    wn = 1.0 - blend.heaviside(phit[inner], n.blend, w)
+    rho0 = jnp.asarray(rho0, dtype=phit.dtype).reshape((-1,) + (1,) * (nd + 1))
+    return wc[:, :, None], jnp.stack([wn * rho0, wn], axis=2)
+
+
+def stress_contributions(phit, xit, laws, stress_fn, h, spacing, numerics):
+    """The solids' stresses' part of :func:`mix`'s sums on each solid's tiles (the corners
+    and nodes within ``stress_band`` of it, where the stress is taken).
+
+    ``phit`` (S, cap, W...), ``xit`` (S, cap, d, W...) with ``W = T + 2``; ``stress_fn(laws,
+    F)`` the stacked constitutive stress (:func:`refmap.model._solid_stresses`).  Returns
+    corner values (S, cap, ncomp, T...), the components ``(1 - H) sigma_ab`` in
+    ``SYM_PAIRS`` order, and node values (S, cap, 1, T...): ``(1 - H) avg(rho_s - rho0)``,
+    the change of the solid's density from its reference one (``rho0 / J``) where its
+    stress is taken, which :func:`blend_contributions`' ``(1 - H) rho0`` completes."""
+    from refmap.model import _det_adjugate
+    from refmap.operators import SYM_PAIRS
+
+    nd = len(spacing)
+    n = numerics
+    w = n.blur_width * h
+    phic = corner_average(phit, nd)  # (S, cap, T + 1, ...)
+    wc = 1.0 - blend.heaviside(phic, n.blend, w)
+    inner = (Ellipsis,) + (slice(1, -1),) * nd
+    wn = 1.0 - blend.heaviside(phit[inner], n.blend, w)  # (S, cap, T, ...)
+    dxi = [grad_corner(xit[:, :, a], *spacing) for a in range(nd)]
+    det, adj = _det_adjugate(dxi)
+    valid = (phic < n.stress_band * h) & (det > 1e-12)
+    safe_det = jnp.where(valid, det, 1.0)
+    # F = adj / det, entry by entry (a (..., d, d) stack divided at once vectorises poorly on
+    # a CPU, its last axes being 2 or 3 long), identity where the stress is not taken
+    eye = jnp.eye(nd)
+    F = jnp.stack([jnp.stack([jnp.where(valid, adj[..., a, b] / safe_det, eye[a, b]) for b in range(nd)], axis=-1)
+                   for a in range(nd)], axis=-2)
+    sig, rho0 = stress_fn(laws, F)
+    rho0 = rho0.reshape((-1,) + (1,) * (nd + 1))
+    drho = jnp.where(valid, rho0 * det - rho0, 0.0)
+    own = (Ellipsis,) + (slice(0, -1),) * nd  # the tile's own T corners of its T + 1
+    corner = jnp.stack([(wc * jnp.where(valid, sig[..., a, b], 0.0))[own] for a, b in SYM_PAIRS[nd]], axis=2)
+    return corner, (wn * node_average(drho, nd))[:, :, None]
+
+
+def mix(s_f, rho_f, A, Tc, B, Tn):
+    """The mixed corner stress components, density and fluid fractions from the sums of
+    :func:`blend_contributions` and :func:`stress_contributions` (``A`` the stress
+    components, ``Tc``, ``B`` the density, ``Tn`` grids).
+
+    The solid fractions ``(1 - H_k) / max(T, 1)`` (:func:`refmap.model.solid_fractions`)
+    share their scale at a point, so ``sum_k w_k sigma_k = A / max(T_c, 1)``."""
+    scale_c = 1.0 / jnp.maximum(Tc, 1.0)
+    scale_n = 1.0 / jnp.maximum(Tn, 1.0)
+    wf_c = jnp.clip(1.0 - Tc * scale_c, 0.0, 1.0)
+    wf_n = jnp.clip(1.0 - Tn * scale_n, 0.0, 1.0)
+    s_mix = [wf_c * sf + a * scale_c for sf, a in zip(s_f, A, strict=True)]
+    rho = wf_n * rho_f + B * scale_n
+    return s_mix, rho, wf_c, wf_n
+
+
+__all__ = ["ERF_ZERO", "Listed", "blend_contributions", "capacity_for", "cutoff", "gather", "mix",
+           "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]

@@ -1,0 +1,185 @@
+"""Each solid's stress, weights and density on its tiles (refmap.solid_tiles, issue 14):
+the mixed fields equal the full-grid computation's."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.scipy.special import erf
+
+import refmap  # noqa: F401  (float64)
+from refmap import blend, solid_tiles
+from refmap.boundary import Boundary
+from refmap.case import Case
+from refmap.geometry import Disc, Rectangle
+from refmap.grid import Grid
+from refmap.materials import NeoHookean
+from refmap.model import Solid
+from refmap.scenarios import get_case
+from refmap.scenarios_fssi import suspension
+
+MIXED = ("sxx", "sxy", "syy", "rho", "wf_c", "wf_n")
+
+
+def test_fraction_is_exactly_zero_beyond_the_cutoff():
+    """The tiles leave out every corner and node at or beyond ``cutoff``: the solid's
+    fraction 1 - H must be exactly 0 there, for both kernels (erf rounds to 1 in float64
+    from x = 5.9216 on, below the 6 w used)."""
+    x = jnp.linspace(5.9216, 40.0, 20001)
+    assert bool(jnp.all(erf(x) == 1.0))
+    assert float(erf(jnp.asarray(5.92))) < 1.0  # the margin is real: just below, it is not 1
+    for kernel in blend.KERNELS:
+        w = 0.07
+        cut = solid_tiles.cutoff(kernel, w)
+        phi = cut * jnp.linspace(1.0, 3.0, 1001)
+        assert bool(jnp.all(1.0 - blend.heaviside(phi, kernel, w) == 0.0)), kernel
+        # and not zero well inside: the cutoff is not too generous to matter
+        assert float(1.0 - blend.heaviside(jnp.asarray(0.8 * cut), kernel, w)) > 0.0
+
+
+def _compare(case, steps=0, tol=0.0, want_tiles=True):
+    """Mixed fields of ``derived`` (and, with ``steps``, the state after them) with
+    band_sweeps = "grid" (full grid) and "band" (tiles); returns the models."""
+    out, models = {}, {}
+    for mode in ("grid", "band"):
+        c = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps=mode))
+        model, params = c.build()
+        models[mode] = model
+        s = model.initial_state(params)
+        if steps:
+            s = jax.jit(lambda s, model=model, params=params: model.run_steps(s, params, steps))(s)
+        d = jax.jit(model.derived)(s, params)
+        out[mode] = (s, d)
+    assert models["grid"].solid_tiles is None
+    assert (models["band"].solid_tiles is not None) == want_tiles
+    # both from the grid run's state: the derived fields alone
+    s_g = out["grid"][0]
+    _, params = case.build()
+    d_b = jax.jit(models["band"].derived)(s_g, params)
+    for k in MIXED:
+        a, b = np.asarray(out["grid"][1][k]), np.asarray(d_b[k])
+        scale = max(np.abs(a).max(), 1.0)
+        assert np.abs(a - b).max() <= tol * scale, (k, np.abs(a - b).max() / scale)
+    if steps:
+        for k in ("v", "rho_f", "xi", "phi"):
+            a, b = np.asarray(getattr(out["grid"][0], k)), np.asarray(getattr(out["band"][0], k))
+            assert np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0), k
+    return models
+
+
+def test_suspension_mixed_fields_bitwise_at_start():
+    """16 discs in a closed box at 128^2: at most two fractions overlap anywhere, so the
+    tile sums are the full-grid arithmetic operation for operation: bitwise equal."""
+    _compare(suspension(128, 16), tol=0.0)
+
+
+def test_suspension_runs_agree():
+    """4 discs at 64^2 after 5 steps: the mixed fields differ by a few ulp (XLA fuses the
+    two layouts' arithmetic differently), the states by round-off."""
+    _compare(suspension(64, 4), steps=5, tol=1e-14)
+
+
+def test_overlapping_fractions_to_round_off():
+    """Two discs overlapping by a cell: their fractions sum past 1 (the renormalisation
+    1 / max(T, 1) then scales them), equal to round-off."""
+    law = NeoHookean(G=10.0, kappa=10.0)
+    g = Grid(64, 64)
+    r = 0.6
+    gap = -1.0 * g.h
+    solids = tuple(Solid(shape=Disc(center=(sx * (r + gap / 2), 0.1), radius=r), law=law) for sx in (-1, 1))
+    case = Case(name="overlap", grid=g, solids=solids)
+    models = _compare(case, tol=1e-14)
+    model, params = case.build()
+    d = jax.jit(model.derived)(model.initial_state(params), params)
+    assert float(jnp.max(jnp.sum(1.0 - d["Hc"], axis=0))) > 1.0  # the case does overlap
+    assert models["band"].solid_tiles is not None
+
+
+def _periodic_case(n=48, blend_kernel="erf"):
+    P = "periodic"
+    law = NeoHookean(G=10.0, kappa=10.0)
+    solids = (
+        Solid(shape=Disc(center=(0.9, 0.85), radius=0.35), law=law),  # across the corner
+        Solid(shape=Rectangle(center=(0.0, -0.2), half_size=(0.4, 0.15)), law=NeoHookean(G=5.0, kappa=20.0, rho0=2.0)),
+    )
+    case = Case(name="periodic", grid=Grid(n, n), solids=solids,
+                boundary=Boundary(left=P, right=P, bottom=P, top=P))
+    return case.replace(numerics=dataclasses.replace(case.numerics, blend=blend_kernel))
+
+
+@pytest.mark.parametrize("kernel", ["erf", "sine"])
+def test_periodic_edges_and_corner(kernel):
+    """A disc straddling the corner of a doubly periodic box (its tiles read the wrapped
+    padding) and a plate of another material; both blend kernels."""
+    _compare(_periodic_case(blend_kernel=kernel), steps=2 if kernel == "erf" else 0, tol=1e-14)
+
+
+def test_capacity_overflow_falls_back_on_the_full_grid():
+    """With a capacity too small for the solids' tiles the step takes the full-grid branch
+    (and agrees); the tiles are then really bypassed, not silently truncated."""
+    case = suspension(96, 9)
+    case = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps="band"))
+    model, params = case.build()
+    s = model.initial_state(params)
+    ref = jax.jit(model.derived)(s, params)
+    tile = model.solid_tiles[0]
+    model.solid_tiles = (tile, (1,), (1,))
+    small = jax.jit(model.derived)(s, params)
+    for k in MIXED:  # the full-grid branch of the cond fuses differently: a few ulp
+        a, b = np.asarray(ref[k]), np.asarray(small[k])
+        assert np.abs(a - b).max() <= 1e-14 * max(np.abs(a).max(), 1.0), k
+    # and a truncated list would have been wrong: the listed tiles are more than one
+    from refmap.model import Model  # noqa: F401
+
+    flags = solid_tiles.tile_flags(model.bc.pad_linear(s.phi)[model._core(1)],
+                                   solid_tiles.cutoff("erf", 2 * model.h), tile)
+    assert int(jnp.max(jnp.sum(flags, axis=(1, 2)))) > 1
+
+
+def test_auto_takes_tiles_only_for_solids_that_cover_little():
+    """band_sweeps = "auto": small discs on a large grid are computed on tiles, the rotor
+    (its stress region covers most of the grid) on the full grid."""
+    model, _ = suspension(128, 16).build()
+    assert model.solid_tiles is not None
+    model, _ = get_case("rotor", 64).build()
+    assert model.solid_tiles is None
+
+
+def test_3d_spheres_equal_full_grid():
+    case = get_case("spheres_settle", 32)
+    out = {}
+    for mode in ("grid", "band"):
+        c = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps=mode))
+        model, params = c.build()
+        if mode == "band":
+            assert model.solid_tiles is not None
+        s = model.initial_state(params)
+        out[mode] = jax.jit(model.derived)(s, params)
+    for k in ("sxx", "sxy", "sxz", "syy", "syz", "szz", "rho", "wf_c", "wf_n"):
+        a, b = np.asarray(out["grid"][k]), np.asarray(out["band"][k])
+        assert np.abs(a - b).max() <= 1e-14 * max(np.abs(a).max(), 1.0), k
+
+
+def test_gradient_through_tiles_equals_full_grid():
+    """Reverse mode through the tiles (gather, scatter-add, the capacity switch): the
+    gradient of the mixed fields with respect to the maps is the full grid's."""
+    case = suspension(48, 4)
+    grads = {}
+    for mode in ("grid", "band"):
+        c = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps=mode))
+        model, params = c.build()
+        s = model.initial_state(params)
+        X = jnp.asarray(model.grid.mesh("node"))
+
+        def loss(xi, model=model, params=params, s=s):
+            d = model.derived(s.replace(xi=xi), params)
+            return jnp.sum(d["sxx"] ** 2 + d["sxy"] ** 2) + jnp.sum(d["rho"] ** 2)
+
+        # a strained map (the initial one is stress-free)
+        xi = s.xi + 0.02 * jnp.sin(3.0 * X[0]) * jnp.cos(2.0 * X[1])
+        grads[mode] = np.asarray(jax.jit(jax.grad(loss))(xi))
+    a, b = grads["grid"], grads["band"]
+    assert np.abs(a).max() > 0
+    assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
