@@ -282,7 +282,10 @@ def test_fluid_mass_conserved_in_a_closed_box():
         m = Model(Grid(32, 32, 0.0, 1.0, 0.0, 1.0), (solid,), box, Numerics(fluid_mass=mode))
         p = m.default_params()
         s0 = m.initial_state(p)
-        s, info = jax.jit(lambda s, m=m, p=p: m.advance(s, p, 0.3))(s0)
+        # to t = 0.2: past it this soft disc at 32^2 goes unstable (dt falls to 1e-7 by
+        # t = 0.25 in both modes, and the advected run to 0.3 stopped at dt = 8e-15, at
+        # 8ee134c too: round-off decides how far it gets, and it passed there before)
+        s, info = jax.jit(lambda s, m=m, p=p: m.advance(s, p, 0.2))(s0)
         assert bool(info["ok"])
         mass = [float(m.diagnostics(x, p)["fluid_mass"]) for x in (s0, s)]
         drift[mode] = mass[1] / mass[0] - 1.0

@@ -826,6 +826,12 @@ class Model:
         nshape = self.grid.shape()
         rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=rho_f.dtype) for law in params.laws])
 
+        # each branch returns its four results packed into one vector: XLA split the
+        # conditional with four outputs into four, each redoing the part of the branch
+        # that its output needs (an optimization barrier did not stop it)
+        def pack(s_mix, rho, wf_c, wf_n):
+            return jnp.concatenate([a.reshape(-1) for a in (*s_mix, rho, wf_c, wf_n)])
+
         def tiled(cap_b, cap_s):
             def run(_):
                 lb = solid_tiles.Listed(flags_b, cap_b)
@@ -839,13 +845,11 @@ class Model:
                 Bn, Tn = solid_tiles.scatter_add(wn, lb, tile, nshape)
                 A = solid_tiles.scatter_add(sig, ls, tile, cshape)
                 Bn = Bn + solid_tiles.scatter_add(drho, ls, tile, nshape)[0]
-                s_mix, rho, wf_c, wf_n = solid_tiles.mix(s_f, rho_f, tuple(A), Tc, Bn, Tn)
-                return tuple(s_mix), rho, wf_c, wf_n
+                return pack(*solid_tiles.mix(s_f, rho_f, tuple(A), Tc, Bn, Tn))
             return run
 
         def dense(_):
-            s_mix, rho, wf_c, wf_n = full()
-            return tuple(s_mix), rho, wf_c, wf_n
+            return pack(*full())
 
         def rung(flags, caps):  # the first capacity that holds every solid's tiles
             most = jnp.max(jnp.sum(flags, axis=tuple(range(1, nd + 1)), dtype=jnp.int32))
@@ -853,8 +857,12 @@ class Model:
 
         level = jnp.maximum(rung(flags_b, caps_b), rung(flags_s, caps_s))  # past the last: full grid
         branches = [tiled(b, c) for b, c in zip(caps_b, caps_s, strict=True)] + [dense]
-        s_mix, rho, wf_c, wf_n = lax.switch(level, branches, None)
-        return list(s_mix), rho, wf_c, wf_n
+        flat = lax.switch(level, branches, None)
+        sizes = [math.prod(cshape)] * len(s_f) + [math.prod(nshape), math.prod(cshape), math.prod(nshape)]
+        shapes = [cshape] * len(s_f) + [nshape, cshape, nshape]
+        parts = jnp.split(flat, np.cumsum(sizes)[:-1].tolist())
+        out = [p.reshape(sh) for p, sh in zip(parts, shapes, strict=True)]
+        return out[:len(s_f)], out[-3], out[-2], out[-1]
 
     def conserve_fluid_mass(self, rho_f, wf_old, rho_new, phi_new):
         """``rho_new`` shifted so that the fluid's mass ``sum(w_f rho_f)`` is the one before

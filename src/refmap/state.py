@@ -169,6 +169,11 @@ class Numerics:
     The list holds ``band_capacity`` (>= 1, default 2) times the tiles the solid's band
     covers at t = 0, plus 8; a band that outgrows it (a body stretched to more than that
     perimeter) makes the step fall back on the full-grid sweeps: same result, full cost.
+    The same setting places each solid's share of the mixed stress and density (its blend
+    weights, deformation gradient and constitutive stress): on the tiles within reach of
+    its interface (:mod:`refmap.solid_tiles`; ``"auto"``: when they are at most
+    ``SOLID_TILE_FRACTION`` (0.5) of the grid's tiles, so many small bodies, not the rotor)
+    or over the whole grid; equal to round-off.
 
     ``compression`` picks the velocity divergence in the fluid-density update
     ``d rho_f / dt = -v . grad rho_f - w_f rho_f div v``:
