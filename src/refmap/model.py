@@ -289,10 +289,13 @@ class Model:
         self._xi0 = np.stack(
             [np.stack(s.initial_map(*Xn)) for s in self.solids]
         ) if self.solids else np.zeros((0, d) + grid.shape())
+        # phi0 of the initial maps (S, ...): where each solid is at t = 0, computed once for
+        # the wall glue and the static band and tile sizes below
+        with jax.ensure_compile_time_eval():
+            self._phi_t0 = np.stack([np.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)]) \
+                if self.solids else np.zeros((0,) + grid.shape())
         if self.solids:  # solids touching a resting wall at t = 0 stay glued to it
-            with jax.ensure_compile_time_eval():
-                inside0 = [np.asarray(self.phi0(k, self._xi0[k])) < 0 for k in range(self.n_solids)]
-            self.bc.glue(self._xi0 - np.stack(Xn), np.stack(inside0))
+            self.bc.glue(self._xi0 - np.stack(Xn), self._phi_t0 < 0)
         self.band_capacity = self._initial_band_capacity()
         self.solid_tiles = self._initial_solid_tiles()
 
@@ -314,16 +317,15 @@ class Model:
         tile = (extrapolation.TILE_TARGET[nd],) * nd
         cuts = (solid_tiles.cutoff(n.blend, n.blur_width * self.h), n.stress_band * self.h)
         with jax.ensure_compile_time_eval():
-            phi = jnp.stack([jnp.minimum(jnp.asarray(self.phi0(k, self._xi0[k])), n.phi_max * self.h)
-                             for k in range(self.n_solids)])
+            phi = jnp.minimum(jnp.asarray(self._phi_t0), n.phi_max * self.h)
             phip = self.bc.pad_linear(phi)[self._core(1)]
             counts = [np.asarray(jnp.sum(solid_tiles.tile_flags(phip, cut, tile),
                                          axis=tuple(range(1, nd + 1)))).tolist() for cut in cuts]
         total = math.prod(solid_tiles.n_tiles(self.grid.shape(), tile))
         ladders = []
         for c in counts:
-            capacity = solid_tiles.capacity_for(c, n.band_capacity, total)
-            tight = min(solid_tiles.capacity_for(c, BAND_TIGHT, total), capacity)
+            capacity = narrowband.capacity_for(c, n.band_capacity, total)
+            tight = min(narrowband.capacity_for(c, BAND_TIGHT, total), capacity)
             ladders.append((tight, capacity))
         if n.band_sweeps == "auto" and ladders[0][1] > SOLID_TILE_FRACTION * total:
             return None
@@ -356,18 +358,18 @@ class Model:
         if self.band_tile is not None:
             shift = n.advected_band * self.h
             with jax.ensure_compile_time_eval():
-                phi = jnp.stack([jnp.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)])
+                phi = jnp.asarray(self._phi_t0)
                 counts = np.asarray(extrapolation.band_tiles(
                     phi - shift, n.band * self.h - shift, self.band_tile, self.bc.periodic))
             total = math.prod(narrowband.n_tiles(self.grid.shape(), self.band_tile))
-            capacity = min(int(math.ceil(n.band_capacity * counts.max())) + 8, total)
+            capacity = narrowband.capacity_for(counts.tolist(), n.band_capacity, total)
             if n.band_sweeps == "auto" and capacity > BAND_TILE_FRACTION * total:
                 capacity = None
         if capacity is None:
             if nd == 3:  # a box round each band, where it is small enough
                 self.band_window = self._initial_band_window()
             return None
-        self._band_tight = min(int(math.ceil(BAND_TIGHT * counts.max())) + 8, capacity)
+        self._band_tight = min(narrowband.capacity_for(counts.tolist(), BAND_TIGHT, total), capacity)
         return capacity
 
     def _initial_band_window(self):
@@ -380,8 +382,7 @@ class Model:
         if n.band_sweeps == "grid" or not self.solids:
             return None
         shift = n.advected_band * self.h
-        with jax.ensure_compile_time_eval():
-            phi = np.stack([np.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)])
+        phi = self._phi_t0
         ext = extrapolation.band_window_extent(phi - shift, n.band * self.h - shift)
         shape = self.grid.shape()
         window = tuple(

@@ -86,6 +86,12 @@ def n_tiles(shape, tile):
     return tuple(-(-n // t) for n, t in zip(shape, tile, strict=True))
 
 
+def capacity_for(counts, factor: float, total: int) -> int:
+    """Static slots of a tile list: ``factor`` times the most tiles a solid holds
+    (``counts``, one per solid), plus 8, at most every tile of the grid (``total``)."""
+    return min(int(math.ceil(factor * int(max(counts, default=0)))) + 8, total)
+
+
 def tile_flags(mask, tile):
     """(ntx, nty[, ntz]): which tiles hold a True node of ``mask`` (nx, ny[, nz])."""
     nd = len(tile)
@@ -269,6 +275,7 @@ __all__ = [
     "Tiles",
     "build",
     "build_from_flags",
+    "capacity_for",
     "gather",
     "halos",
     "interior",

@@ -87,12 +87,6 @@ def tile_flags(phip, cut, tile):
     return window_min(phip, tile) < cut
 
 
-def capacity_for(counts, factor: float, total: int) -> int:
-    """Static slots per solid: ``factor`` times the most tiles a solid holds, plus 8, at most
-    every tile of the grid."""
-    return min(int(math.ceil(factor * int(max(counts, default=0)))) + 8, total)
-
-
 class Listed:
     """The listed tiles of every solid: ``pos`` per axis (S, cap), ``slot`` (S, cap) True
     where the slot holds a tile, ``count`` (S,) the tiles each solid needs (may exceed cap)."""
@@ -210,5 +204,5 @@ def mix(s_f, rho_f, A, Tc, B, Tn):
     return s_mix, rho, wf_c, wf_n
 
 
-__all__ = ["ERF_ZERO", "Listed", "blend_contributions", "capacity_for", "cutoff", "gather", "mix",
+__all__ = ["ERF_ZERO", "Listed", "blend_contributions", "cutoff", "gather", "mix",
            "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
