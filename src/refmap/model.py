@@ -865,6 +865,33 @@ class Model:
         out = [p.reshape(sh) for p, sh in zip(parts, shapes, strict=True)]
         return out[:len(s_f)], out[-3], out[-2], out[-1]
 
+    def _advect_maps(self, xi, xip, vel, phi, dt):
+        """Step 1: the maps advected (ENO) where ``phi < (band - 3) h``, kept elsewhere.
+        With solids on tiles (:attr:`solid_tiles`) on each solid's node tiles that hold
+        such a node (:func:`refmap.solid_tiles.advect_maps`, same values), in the stress
+        list's capacities (a tile with a node within ``(band - 3) h`` is within
+        ``stress_band`` when ``band - 3 <= stress_band``, as by default); the full grid
+        where a solid holds more tiles or an axis is shorter than a tile."""
+        limit = (self.numerics.band - 3.0) * self.h
+
+        def dense(_):
+            return jnp.where((phi < limit)[:, None], xi + dt * advect(xip, vel, *self.spacing), xi)
+
+        if self.solid_tiles is None:
+            return dense(None)
+        tile, _, caps = self.solid_tiles
+        if any(n < t for n, t in zip(self.grid.shape(), tile, strict=True)):
+            return dense(None)
+        flags = solid_tiles.node_tile_min(lax.stop_gradient(phi), tile) < limit
+        most = jnp.max(jnp.sum(flags, axis=tuple(range(1, self.ndim + 1)), dtype=jnp.int32))
+        level = jnp.sum(jnp.asarray(caps, dtype=jnp.int32) < most, dtype=jnp.int32)
+
+        def tiled(cap):
+            return lambda _: solid_tiles.advect_maps(xi, xip, vel, phi, limit, flags, cap, tile,
+                                                     self.spacing, dt)
+
+        return lax.switch(level, [tiled(c) for c in caps] + [dense], None)
+
     def conserve_fluid_mass(self, rho_f, wf_old, rho_new, phi_new):
         """``rho_new`` shifted so that the fluid's mass ``sum(w_f rho_f)`` is the one before
         the step (``Numerics.fluid_mass = "conserved"``, closed boxes only).
@@ -925,7 +952,6 @@ class Model:
         output, :meth:`output_fields`; plain CG, not differentiable); ``"info"``: the
         pressure and the CG solver's info (iterations, residual, converged)."""
         g = self.grid
-        h = self.h
         sp = self.spacing
         nd = self.ndim
         n = self.numerics
@@ -1007,12 +1033,9 @@ class Model:
             return state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new)
 
         # 1. reference-map advection inside each solid and the inner part of its band
-        xip = bc.pad_affine(state.xi)
         # with implicit viscosity the maps move with the updated velocity (symplectic Euler
         # for the elastic waves: no damping needed for their stability, see time_step)
-        dxi = advect(xip, vq, *sp)
-        inside = (state.phi < (n.band - 3.0) * h)[:, None]
-        xi_new = jnp.where(inside, state.xi + dt * dxi, state.xi)
+        xi_new = self._advect_maps(state.xi, bc.pad_affine(state.xi), vq, state.phi, dt)
 
         # 8. anchors
         xi0 = jnp.asarray(self._xi0)

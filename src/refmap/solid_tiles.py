@@ -188,6 +188,68 @@ def stress_contributions(phit, xit, laws, stress_fn, h, spacing, numerics):
     return corner, (wn * node_average(drho, nd))[:, :, None]
 
 
+def node_tile_min(phi, tile):
+    """(S, mtx, mty[, mtz]): the least value of the level sets ``phi`` (S, nx, ny[, nz]) on
+    each node tile (``T`` nodes a side, ``ceil(n / T)`` tiles per axis, the last one
+    holding the remaining nodes)."""
+    nd = len(tile)
+    shape = phi.shape[-nd:]
+    mt = tuple(-(-n // t) for n, t in zip(shape, tile, strict=True))
+    m = _pad_high(phi, tuple(k * t for k, t in zip(mt, tile, strict=True)), jnp.inf, nd)
+    lead = m.ndim - nd
+    for a in range(nd):
+        win = [1] * m.ndim
+        win[lead + a] = tile[a]
+        m = lax.reduce_window(m, jnp.asarray(jnp.inf, m.dtype), lax.min, tuple(win), tuple(win), "VALID")
+    return m
+
+
+def advect_maps(xi, xip, vel, phi, limit, flags, capacity: int, tile, spacing, dt):
+    """Each solid's reference maps advected on its listed node tiles: ``xi + dt (-(v . grad)
+    xi)`` (ENO, :func:`refmap.operators.advect`) where ``phi < limit``, ``xi`` elsewhere,
+    the same arithmetic node for node as on the whole grid.
+
+    ``xi`` (S, d, nx, ny[, nz]) the maps, ``xip`` the same padded with two ghost layers
+    (:meth:`refmap.boundary.BoundaryConditions.pad_affine`), ``vel`` (d, nx, ny[, nz]) the
+    advecting velocity, ``phi`` (S, nx, ny[, nz]), ``flags`` (S, mt...) the node tiles
+    holding a node with ``phi < limit`` (:func:`node_tile_min`), at most ``capacity`` per
+    solid (the caller checks).  A tile's window starts at ``min(p T, n - T)`` per axis: the
+    last tile of an axis that ``T`` does not divide is moved back to end on the last node,
+    overlapping its neighbour, whose nodes it computes with the same arithmetic, so the
+    writes agree.  Every axis must hold at least ``T`` nodes."""
+    from refmap.operators import advect
+
+    nd = len(tile)
+    shape = xi.shape[-nd:]
+    S, d = xi.shape[0], xi.shape[1]
+    listed = Listed(flags, capacity)
+    starts = tuple(jnp.minimum(p * t, n - t) for p, t, n in zip(listed.pos, tile, shape, strict=True))
+
+    def windows(a, size, per_solid):
+        def one(a_k, *st):
+            lead = a_k.shape[:a_k.ndim - nd]
+            return lax.dynamic_slice(a_k, (jnp.int32(0),) * len(lead) + st, lead + size)
+
+        if per_solid:
+            return jax.vmap(lambda a_k, *p: jax.vmap(lambda *q: one(a_k, *q))(*p))(a, *starts)
+        return jax.vmap(lambda *p: jax.vmap(lambda *q: one(a, *q))(*p))(*starts)
+
+    wide = tuple(t + 4 for t in tile)
+    xw = windows(xip, wide, True)  # (S, cap, d, T + 4, ...)
+    vw = jnp.moveaxis(windows(vel, tuple(tile), False), 2, 0)[:, :, :, None]  # (d, S, cap, 1, T...)
+    pw = windows(phi, tuple(tile), True)[:, :, None]  # (S, cap, 1, T...)
+    own = xw[(Ellipsis,) + (slice(2, -2),) * nd]
+    new = jnp.where(pw < limit, own + dt * advect(xw, vw, *spacing), own)
+    # write the windows back; empty slots name solid S, out of bounds, and are dropped
+    which = jnp.where(listed.slot, jnp.arange(S, dtype=jnp.int32)[:, None], S)
+    index = jnp.stack((which,) + tuple(st.astype(jnp.int32) for st in starts), axis=-1)
+    dnums = lax.ScatterDimensionNumbers(
+        update_window_dims=tuple(range(1, nd + 2)), inserted_window_dims=(0,),
+        scatter_dims_to_operand_dims=(0,) + tuple(range(2, nd + 2)))
+    return lax.scatter(xi, index.reshape(-1, nd + 1), new.reshape((-1, d) + tuple(tile)), dnums,
+                       mode=lax.GatherScatterMode.FILL_OR_DROP)
+
+
 def mix(s_f, rho_f, A, Tc, B, Tn):
     """The mixed corner stress components, density and fluid fractions from the sums of
     :func:`blend_contributions` and :func:`stress_contributions` (``A`` the stress
@@ -204,5 +266,5 @@ def mix(s_f, rho_f, A, Tc, B, Tn):
     return s_mix, rho, wf_c, wf_n
 
 
-__all__ = ["ERF_ZERO", "Listed", "blend_contributions", "cutoff", "gather", "mix",
-           "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
+__all__ = ["ERF_ZERO", "Listed", "advect_maps", "blend_contributions", "cutoff", "gather",
+           "mix", "n_tiles", "node_tile_min", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
