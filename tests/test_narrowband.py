@@ -112,7 +112,7 @@ def test_model_band_sweeps_equal_grid_sweeps(name):
         c = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps=mode))
         model, params = c.build()
         if mode == "band":
-            assert model.band_capacity is not None  # tiled (36 tiles of 16 x 16)
+            assert model.band_capacity is not None  # tiled (144 tiles of 8 x 8)
         s = model.initial_state(params)
         out[mode] = jax.jit(lambda s, model=model, params=params: model.run_steps(s, params, 10))(s)
     for k in ("v", "rho_f", "xi", "phi"):

@@ -268,3 +268,20 @@ def test_gradient_through_tile_advection_equals_full_grid():
     for a, b in zip(grads["grid"], grads["tiles"], strict=True):
         assert np.abs(a).max() > 0
         assert np.abs(a - b).max() <= 1e-13 * np.abs(a).max()
+
+
+def test_auto_keeps_small_2d_grids_on_the_full_grid():
+    """band_sweeps = "auto" below AUTO_TILE_MIN_NODES_2D nodes (compile time outweighs the
+    gain there): no band tiles, no solid tiles, although the bodies cover little; "band"
+    still tiles such a grid."""
+    from refmap.model import AUTO_TILE_MIN_NODES_2D
+
+    case = suspension(64, 4)
+    assert 64 * 64 < AUTO_TILE_MIN_NODES_2D
+    model, _ = case.build()
+    assert model.band_capacity is None and model.solid_tiles is None
+    forced = case.replace(numerics=dataclasses.replace(case.numerics, band_sweeps="band"))
+    model, _ = forced.build()
+    assert model.band_capacity is not None and model.solid_tiles is not None
+    model, _ = suspension(128, 16).build()  # above the floor: tiles
+    assert model.band_capacity is not None and model.solid_tiles is not None

@@ -28,7 +28,7 @@ components and the stencils six neighbours (x-, x+, y-, y+, z-, z+).  One code p
 stencils loop over the axes, and in 2D they perform the original arithmetic in the
 original order, so 2D results are bitwise unchanged (tested against a frozen copy).  The
 band-tile layout of :func:`extend` (``capacity``, :mod:`refmap.narrowband`) works in both:
-squares of about 16 nodes a side in 2D, cubes of about 8 in 3D.
+squares of about 8 nodes a side in 2D, cubes of about 8 in 3D.
 
 Domain edges: without ``periodic`` nothing beyond the edge is known, so extrapolation and
 one-sided differences use in-domain nodes only, and a second difference across the edge is
@@ -651,10 +651,11 @@ def extend(
     return lax.switch(level, [compact(c) for c in ladder] + [dense], f, phi)
 
 
-#: default tile side of :func:`extend`'s band tiles, by grid dimension: 16 x 16 in 2D, 8 x 8 x 8
-#: in 3D (a 16^3 tile holds 4096 nodes, so a thin band round a small body lists too much of
-#: the grid; docs/benchmarks.md, "Band tiles in 3D")
-TILE_TARGET = {2: 16, 3: 8}
+#: default tile side of :func:`extend`'s band tiles, by grid dimension: 8 x 8 in 2D, 8 x 8 x 8
+#: in 3D.  A larger tile lists more of the grid round a thin band (a 16^3 tile holds 4096
+#: nodes; docs/benchmarks.md, "Band tiles in 3D").  In 2D 16 x 16 was the first choice; 8 x 8
+#: made whole steps 14-30 % faster at 128^2-256^2 (rotor, 1-64 discs; "Smaller tiles in 2D")
+TILE_TARGET = {2: 8, 3: 8}
 
 #: nodes kept between a band and the edge of its window (:func:`extend`'s ``window``): the
 #: band's nodes then read only nodes inside (the normal of phi, the neighbours of the sweeps)

@@ -77,6 +77,11 @@ BAND_WINDOW_SLACK = 8
 # the grid's (a tile's window of T + 2 nodes a side and the sum into the grid cost more per
 # node than the full-grid computation; docs/benchmarks.md, "Solids' stress on tiles")
 SOLID_TILE_FRACTION = 0.5
+# band_sweeps = "auto" in 2D: the full grid below this many nodes, whatever the fractions.
+# There a whole step takes a few ms either way, and the tiles' extra branches (the capacity
+# ladder) triple the compile time (64^2, 4 discs: 7 s -> 20 s for a step 10 % faster;
+# docs/benchmarks.md, "Smaller tiles in 2D")
+AUTO_TILE_MIN_NODES_2D = 10_000
 
 LIMIT_NAMES = ("viscous", "solid wave", "wave damping", "fluid sound", "convective", "output", "dt_max", "fixed")
 
@@ -309,7 +314,8 @@ class Model:
         at t = 0, plus 8, then ``band_capacity`` times them plus 8; the step takes the
         first rung that holds every solid's tiles, and the full grid past the last.  None
         with ``band_sweeps = "grid"`` or without solids, and with ``"auto"`` when the blend
-        list's last capacity is more than ``SOLID_TILE_FRACTION`` of the grid's tiles."""
+        list's last capacity is more than ``SOLID_TILE_FRACTION`` of the grid's tiles or a
+        2D grid has fewer than ``AUTO_TILE_MIN_NODES_2D`` nodes."""
         n = self.numerics
         if n.band_sweeps == "grid" or not self.solids:
             return None
@@ -327,9 +333,14 @@ class Model:
             capacity = narrowband.capacity_for(c, n.band_capacity, total)
             tight = min(narrowband.capacity_for(c, BAND_TIGHT, total), capacity)
             ladders.append((tight, capacity))
-        if n.band_sweeps == "auto" and ladders[0][1] > SOLID_TILE_FRACTION * total:
+        if n.band_sweeps == "auto" and (ladders[0][1] > SOLID_TILE_FRACTION * total or self._auto_too_small()):
             return None
         return tile, ladders[0], ladders[1]
+
+    def _auto_too_small(self) -> bool:
+        """``band_sweeps = "auto"``: a 2D grid too small for tiles to pay
+        (:data:`AUTO_TILE_MIN_NODES_2D`)."""
+        return self.ndim == 2 and math.prod(self.grid.shape()) < AUTO_TILE_MIN_NODES_2D
 
     def _initial_band_capacity(self):
         """Static number of band tiles per solid (``Numerics.band_sweeps = "band"``).
@@ -339,10 +350,11 @@ class Model:
         None (full-grid sweeps) with ``band_sweeps = "grid"``, without solids, when the
         grid cannot be tiled (:func:`refmap.narrowband.tile_shape`), or with
         ``band_sweeps = "auto"`` when that is more than ``BAND_TILE_FRACTION`` of the
-        grid's tiles (the full-grid sweeps are then the cheaper).
+        grid's tiles (the full-grid sweeps are then the cheaper) or a 2D grid has fewer than
+        ``AUTO_TILE_MIN_NODES_2D`` nodes.
         A band that outgrows it makes the step fall back on the full-grid sweeps (same
         result, full cost).  A tighter capacity, ``BAND_TIGHT`` times those tiles plus 8,
-        is tried first.  Tiles are squares of about 16 nodes a side in 2D and cubes of
+        is tried first.  Tiles are squares of about 8 nodes a side in 2D and cubes of
         about 8 in 3D (:data:`refmap.extrapolation.TILE_TARGET`); a 3D band that is not
         tiled is swept in a box round it where that pays (:meth:`_initial_band_window`)."""
         n = self.numerics
@@ -363,7 +375,7 @@ class Model:
                     phi - shift, n.band * self.h - shift, self.band_tile, self.bc.periodic))
             total = math.prod(narrowband.n_tiles(self.grid.shape(), self.band_tile))
             capacity = narrowband.capacity_for(counts.tolist(), n.band_capacity, total)
-            if n.band_sweeps == "auto" and capacity > BAND_TILE_FRACTION * total:
+            if n.band_sweeps == "auto" and (capacity > BAND_TILE_FRACTION * total or self._auto_too_small()):
                 capacity = None
         if capacity is None:
             if nd == 3:  # a box round each band, where it is small enough

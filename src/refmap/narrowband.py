@@ -3,7 +3,7 @@
 The band work of a solid (extrapolating its reference map, smoothing the extrapolated
 values) updates only the nodes near its interface: a few per cent of the grid for a large
 body, far less for a small one.  Sweeping the whole grid for them moves every field through
-memory once per sweep.  Here the grid is cut into tiles of ``tx x ty`` nodes (about 16 x 16;
+memory once per sweep.  Here the grid is cut into tiles of ``tx x ty`` nodes (about 8 x 8;
 ``tx x ty x tz``, about 8 x 8 x 8, in 3D),
 the tiles holding at least one node to update are gathered once into a list of static
 length ``capacity`` (JAX needs static shapes), and the sweeps run on the list: a dense

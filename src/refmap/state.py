@@ -161,11 +161,12 @@ class Numerics:
     run: ``"band"`` on the grid tiles that solid's band covers (:mod:`refmap.narrowband`,
     gathered once per step; equal to the full-grid sweeps to round-off), ``"grid"`` over
     the whole grid, ``"auto"`` (default) on tiles when the listed tiles are at most
-    ``BAND_TILE_FRACTION`` (0.75) of the grid's tiles and over the whole
-    grid otherwise (a tile sweep costs more per node than a full-grid sweep, measured in
+    ``BAND_TILE_FRACTION`` (0.75) of the grid's tiles (and, in 2D, the grid has at least
+    ``AUTO_TILE_MIN_NODES_2D`` = 10 000 nodes: below, compile time outweighs the gain) and
+    over the whole grid otherwise (a tile sweep costs more per node than a full-grid sweep, measured in
     docs/benchmarks.md, so a band that covers more of the grid is cheaper swept densely; in
     3D such a band is swept in a box round it when the box is small enough).  Tiles are
-    about 16 x 16 nodes in 2D and 8 x 8 x 8 in 3D.
+    about 8 x 8 nodes in 2D and 8 x 8 x 8 in 3D.
     The list holds ``band_capacity`` (>= 1, default 2) times the tiles the solid's band
     covers at t = 0, plus 8; a band that outgrows it (a body stretched to more than that
     perimeter) makes the step fall back on the full-grid sweeps: same result, full cost.
