@@ -778,8 +778,11 @@ class Model:
                        wf_c=jnp.ones_like(p), wf_n=jnp.ones_like(state.rho_f))
             return out
 
-        phip = bc.pad_linear(state.phi)[core]
-        xip = bc.pad_affine(state.xi)[core]
+        # two ghost layers, as the map advection of the step pads them (one pad for both);
+        # the tiles read them in place, the full-grid fields from one layer
+        phip2 = bc.pad_linear(state.phi)
+        xip2 = bc.pad_affine(state.xi)
+        phip, xip = phip2[core], xip2[core]
         f = self._solids_full(s_f, state.rho_f, state.phi, phip, xip, params)
         s_mix, rho, wf_c, wf_n = f.pop("mixed")
         if self.solid_tiles is not None:
@@ -787,8 +790,8 @@ class Model:
             # full-grid ones, for diagnostics and output; inside the step nothing reads them
             # in the default configuration and XLA drops them)
             s_mix, rho, wf_c, wf_n = self._mixed_on_tiles(
-                s_f, state.rho_f, phip, xip, params,
-                lambda: self._solids_full(s_f, state.rho_f, state.phi, phip, xip, params)["mixed"])
+                s_f, state.rho_f, phip2, xip2, params,
+                lambda: self._solids_full(s_f, state.rho_f, state.phi, phip2[core], xip2[core], params)["mixed"])
         out.update(_stress_keys(s_mix, nd), rho=rho, wf_c=wf_c, wf_n=wf_n, **f)
         return out
 
@@ -828,12 +831,13 @@ class Model:
     def _mixed_on_tiles(self, s_f, rho_f, phip, xip, params, full):
         """The mixed stress components, density and fluid fractions of :meth:`derived`
         summed from each solid's tiles (:mod:`refmap.solid_tiles`); ``full()`` (the same
-        four from the full grid) where a solid holds more tiles than the static capacity."""
+        four from the full grid) where a solid holds more tiles than the static capacity.
+        ``phip``, ``xip``: the level sets and maps padded with two ghost layers."""
         n = self.numerics
         nd = self.ndim
         tile, caps_b, caps_s = self.solid_tiles
         cut = solid_tiles.cutoff(n.blend, n.blur_width * self.h)
-        least = solid_tiles.window_min(lax.stop_gradient(phip), tile)  # which tiles: no derivative
+        least = solid_tiles.window_min(lax.stop_gradient(phip), tile, 1)  # which tiles: no derivative
         flags_b, flags_s = least < cut, least < n.stress_band * self.h
         cshape = tuple(s + 1 for s in self.grid.shape())
         nshape = self.grid.shape()
@@ -849,10 +853,10 @@ class Model:
             def run(_):
                 lb = solid_tiles.Listed(flags_b, cap_b)
                 wc, wn = solid_tiles.blend_contributions(
-                    solid_tiles.gather(phip, lb, tile, jnp.inf), rho0, self.h, n)
+                    solid_tiles.gather(phip, lb, tile, jnp.inf, 1), rho0, self.h, n)
                 ls = solid_tiles.Listed(flags_s, cap_s)
                 sig, drho = solid_tiles.stress_contributions(
-                    solid_tiles.gather(phip, ls, tile, jnp.inf), solid_tiles.gather(xip, ls, tile, 0.0),
+                    solid_tiles.gather(phip, ls, tile, jnp.inf, 1), solid_tiles.gather(xip, ls, tile, 0.0, 1),
                     params.laws, _solid_stresses, self.h, self.spacing, n)
                 Tc = solid_tiles.scatter_add(wc, lb, tile, cshape)[0]
                 Bn, Tn = solid_tiles.scatter_add(wn, lb, tile, nshape)

@@ -55,21 +55,23 @@ def n_tiles(shape, tile) -> tuple[int, ...]:
     return tuple(-(-(n + 1) // t) for n, t in zip(shape, tile, strict=True))
 
 
-def _pad_high(a, size, fill, nd):
-    """``a`` padded with ``fill`` at the high end of its last ``nd`` axes to ``size``."""
+def _pad_high(a, size, fill, nd, crop: int = 0):
+    """``a`` without its first ``crop`` entries along each of its last ``nd`` axes, then
+    padded with ``fill`` (or cut) at their high end to ``size``: one pass."""
     lead = a.ndim - nd
-    widths = [(0, 0, 0)] * lead + [(0, s - a.shape[lead + i], 0) for i, s in enumerate(size)]
+    widths = [(0, 0, 0)] * lead + [(-crop, s - (a.shape[lead + i] - crop), 0) for i, s in enumerate(size)]
     return lax.pad(a, jnp.asarray(fill, dtype=a.dtype), widths)
 
 
-def window_min(phip, tile):
+def window_min(phip, tile, extra: int = 0):
     """(S, ntx, nty[, ntz]): the least value of the padded level sets ``phip`` (S, nx + 2,
     ny + 2[, nz + 2]) in each tile's window.  One axis at a time (a separable minimum: a
-    window of ``(T + 2)^d`` at once ran 8 times slower on a CPU)."""
+    window of ``(T + 2)^d`` at once ran 8 times slower on a CPU).  ``extra``: ``phip`` has
+    that many more ghost layers on each side (not read)."""
     nd = len(tile)
-    shape = tuple(s - 2 for s in phip.shape[-nd:])
+    shape = tuple(s - 2 - 2 * extra for s in phip.shape[-nd:])
     nt = n_tiles(shape, tile)
-    m = _pad_high(phip, tuple(k * t + 2 for k, t in zip(nt, tile, strict=True)), jnp.inf, nd)
+    m = _pad_high(phip, tuple(k * t + 2 for k, t in zip(nt, tile, strict=True)), jnp.inf, nd, extra)
     lead = m.ndim - nd
     for a in range(nd):
         win = [1] * m.ndim
@@ -105,11 +107,13 @@ class Listed:
         self.nt = nt
 
 
-def gather(a, listed: Listed, tile, fill):
+def gather(a, listed: Listed, tile, fill, extra: int = 0):
     """Each solid's windows of a padded field ``a`` (S, ..., nx + 2, ny + 2[, nz + 2]):
-    (S, cap, ..., T + 2, T + 2[, T + 2]); beyond the high edge the value is ``fill``."""
+    (S, cap, ..., T + 2, T + 2[, T + 2]); beyond the high edge the value is ``fill``.
+    ``extra``: ``a`` has that many more ghost layers on each side (not read; padding once
+    with two layers for the map advection and the stress saves a copy of every map)."""
     nd = len(tile)
-    a = _pad_high(a, tuple(k * t + 2 for k, t in zip(listed.nt, tile, strict=True)), fill, nd)
+    a = _pad_high(a, tuple(k * t + 2 for k, t in zip(listed.nt, tile, strict=True)), fill, nd, extra)
     size = tuple(t + 2 for t in tile)
     lead = a.shape[1:-nd]
 
