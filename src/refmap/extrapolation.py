@@ -643,11 +643,10 @@ def extend(
 
         return run
 
-    most = jnp.max(jnp.sum(flags, axis=tuple(range(-nd, 0)), dtype=jnp.int32))
-    if len(ladder) == 1:
-        return lax.cond(most <= ladder[0], compact(ladder[0]), dense, f, phi)
     # the first capacity that holds the largest band; past the last one, the full grid
-    level = jnp.sum(jnp.asarray(ladder, dtype=jnp.int32) < most, dtype=jnp.int32)
+    level = narrowband.ladder_level(flags, ladder)
+    if len(ladder) == 1:
+        return lax.cond(level == 0, compact(ladder[0]), dense, f, phi)
     return lax.switch(level, [compact(c) for c in ladder] + [dense], f, phi)
 
 

@@ -834,7 +834,6 @@ class Model:
         four from the full grid) where a solid holds more tiles than the static capacity.
         ``phip``, ``xip``: the level sets and maps padded with two ghost layers."""
         n = self.numerics
-        nd = self.ndim
         tile, caps_b, caps_s = self.solid_tiles
         cut = solid_tiles.cutoff(n.blend, n.blur_width * self.h)
         least = solid_tiles.window_min(lax.stop_gradient(phip), tile, 1)  # which tiles: no derivative
@@ -868,11 +867,8 @@ class Model:
         def dense(_):
             return pack(*full())
 
-        def rung(flags, caps):  # the first capacity that holds every solid's tiles
-            most = jnp.max(jnp.sum(flags, axis=tuple(range(1, nd + 1)), dtype=jnp.int32))
-            return jnp.sum(jnp.asarray(caps, dtype=jnp.int32) < most, dtype=jnp.int32)
-
-        level = jnp.maximum(rung(flags_b, caps_b), rung(flags_s, caps_s))  # past the last: full grid
+        # the first rung that holds every solid's tiles of both lists; past the last: full grid
+        level = jnp.maximum(narrowband.ladder_level(flags_b, caps_b), narrowband.ladder_level(flags_s, caps_s))
         branches = [tiled(b, c) for b, c in zip(caps_b, caps_s, strict=True)] + [dense]
         flat = lax.switch(level, branches, None)
         sizes = [math.prod(cshape)] * len(s_f) + [math.prod(nshape), math.prod(cshape), math.prod(nshape)]
@@ -898,9 +894,8 @@ class Model:
         tile, _, caps = self.solid_tiles
         if any(n < t for n, t in zip(self.grid.shape(), tile, strict=True)):
             return dense(None)
-        flags = solid_tiles.node_tile_min(lax.stop_gradient(phi), tile) < limit
-        most = jnp.max(jnp.sum(flags, axis=tuple(range(1, self.ndim + 1)), dtype=jnp.int32))
-        level = jnp.sum(jnp.asarray(caps, dtype=jnp.int32) < most, dtype=jnp.int32)
+        flags = jax.vmap(lambda p: narrowband.tile_flags(p < limit, tile))(lax.stop_gradient(phi))
+        level = narrowband.ladder_level(flags, caps)
 
         def tiled(cap):
             return lambda _: solid_tiles.advect_maps(xi, xip, vel, phi, limit, flags, cap, tile,

@@ -92,6 +92,15 @@ def capacity_for(counts, factor: float, total: int) -> int:
     return min(int(math.ceil(factor * int(max(counts, default=0)))) + 8, total)
 
 
+def ladder_level(flags, ladder):
+    """Which rung of a capacity ``ladder`` (ascending) holds every solid's listed tiles
+    (``flags`` (S, nt...)): the index of the first capacity at least the largest count,
+    ``len(ladder)`` (past the last: the full grid) when none is."""
+    nd = flags.ndim - 1
+    most = jnp.max(jnp.sum(flags, axis=tuple(range(1, nd + 1)), dtype=jnp.int32))
+    return jnp.sum(jnp.asarray(ladder, dtype=jnp.int32) < most, dtype=jnp.int32)
+
+
 def tile_flags(mask, tile):
     """(ntx, nty[, ntz]): which tiles hold a True node of ``mask`` (nx, ny[, nz])."""
     nd = len(tile)
@@ -276,6 +285,7 @@ __all__ = [
     "build",
     "build_from_flags",
     "capacity_for",
+    "ladder_level",
     "gather",
     "halos",
     "interior",

@@ -114,14 +114,23 @@ def gather(a, listed: Listed, tile, fill, extra: int = 0):
     with two layers for the map advection and the stress saves a copy of every map)."""
     nd = len(tile)
     a = _pad_high(a, tuple(k * t + 2 for k, t in zip(listed.nt, tile, strict=True)), fill, nd, extra)
-    size = tuple(t + 2 for t in tile)
-    lead = a.shape[1:-nd]
+    starts = tuple(p * t for p, t in zip(listed.pos, tile, strict=True))
+    return _windows(a, starts, tuple(t + 2 for t in tile), per_solid=True)
 
-    def one(a_k, *p):
-        start = (jnp.int32(0),) * len(lead) + tuple(q * t for q, t in zip(p, tile, strict=True))
-        return lax.dynamic_slice(a_k, start, lead + size)
 
-    return jax.vmap(lambda a_k, *p: jax.vmap(lambda *q: one(a_k, *q))(*p))(a, *listed.pos)
+def _windows(a, starts, size, per_solid: bool):
+    """Windows of ``size`` (the last ``len(size)`` axes) of ``a`` at ``starts`` (one (S,
+    cap) array per axis): (S, cap, ..., *size).  ``per_solid``: ``a`` has a leading solid
+    axis (S, ...) and solid k's windows are cut from ``a[k]``; otherwise all from ``a``."""
+    nd = len(size)
+
+    def one(a_k, *st):
+        lead = a_k.shape[:a_k.ndim - nd]
+        return lax.dynamic_slice(a_k, (jnp.int32(0),) * len(lead) + tuple(st), lead + tuple(size))
+
+    if per_solid:
+        return jax.vmap(lambda a_k, *p: jax.vmap(lambda *q: one(a_k, *q))(*p))(a, *starts)
+    return jax.vmap(lambda *p: jax.vmap(lambda *q: one(a, *q))(*p))(*starts)
 
 
 def scatter_add(values, listed: Listed, tile, shape):
@@ -192,22 +201,6 @@ def stress_contributions(phit, xit, laws, stress_fn, h, spacing, numerics):
     return corner, (wn * node_average(drho, nd))[:, :, None]
 
 
-def node_tile_min(phi, tile):
-    """(S, mtx, mty[, mtz]): the least value of the level sets ``phi`` (S, nx, ny[, nz]) on
-    each node tile (``T`` nodes a side, ``ceil(n / T)`` tiles per axis, the last one
-    holding the remaining nodes)."""
-    nd = len(tile)
-    shape = phi.shape[-nd:]
-    mt = tuple(-(-n // t) for n, t in zip(shape, tile, strict=True))
-    m = _pad_high(phi, tuple(k * t for k, t in zip(mt, tile, strict=True)), jnp.inf, nd)
-    lead = m.ndim - nd
-    for a in range(nd):
-        win = [1] * m.ndim
-        win[lead + a] = tile[a]
-        m = lax.reduce_window(m, jnp.asarray(jnp.inf, m.dtype), lax.min, tuple(win), tuple(win), "VALID")
-    return m
-
-
 def advect_maps(xi, xip, vel, phi, limit, flags, capacity: int, tile, spacing, dt):
     """Each solid's reference maps advected on its listed node tiles: ``xi + dt (-(v . grad)
     xi)`` (ENO, :func:`refmap.operators.advect`) where ``phi < limit``, ``xi`` elsewhere,
@@ -216,7 +209,7 @@ def advect_maps(xi, xip, vel, phi, limit, flags, capacity: int, tile, spacing, d
     ``xi`` (S, d, nx, ny[, nz]) the maps, ``xip`` the same padded with two ghost layers
     (:meth:`refmap.boundary.BoundaryConditions.pad_affine`), ``vel`` (d, nx, ny[, nz]) the
     advecting velocity, ``phi`` (S, nx, ny[, nz]), ``flags`` (S, mt...) the node tiles
-    holding a node with ``phi < limit`` (:func:`node_tile_min`), at most ``capacity`` per
+    holding a node with ``phi < limit`` (:func:`refmap.narrowband.tile_flags`), at most ``capacity`` per
     solid (the caller checks).  A tile's window starts at ``min(p T, n - T)`` per axis: the
     last tile of an axis that ``T`` does not divide is moved back to end on the last node,
     overlapping its neighbour, whose nodes it computes with the same arithmetic, so the
@@ -228,20 +221,9 @@ def advect_maps(xi, xip, vel, phi, limit, flags, capacity: int, tile, spacing, d
     S, d = xi.shape[0], xi.shape[1]
     listed = Listed(flags, capacity)
     starts = tuple(jnp.minimum(p * t, n - t) for p, t, n in zip(listed.pos, tile, shape, strict=True))
-
-    def windows(a, size, per_solid):
-        def one(a_k, *st):
-            lead = a_k.shape[:a_k.ndim - nd]
-            return lax.dynamic_slice(a_k, (jnp.int32(0),) * len(lead) + st, lead + size)
-
-        if per_solid:
-            return jax.vmap(lambda a_k, *p: jax.vmap(lambda *q: one(a_k, *q))(*p))(a, *starts)
-        return jax.vmap(lambda *p: jax.vmap(lambda *q: one(a, *q))(*p))(*starts)
-
-    wide = tuple(t + 4 for t in tile)
-    xw = windows(xip, wide, True)  # (S, cap, d, T + 4, ...)
-    vw = jnp.moveaxis(windows(vel, tuple(tile), False), 2, 0)[:, :, :, None]  # (d, S, cap, 1, T...)
-    pw = windows(phi, tuple(tile), True)[:, :, None]  # (S, cap, 1, T...)
+    xw = _windows(xip, starts, tuple(t + 4 for t in tile), True)  # (S, cap, d, T + 4, ...)
+    vw = jnp.moveaxis(_windows(vel, starts, tile, False), 2, 0)[:, :, :, None]  # (d, S, cap, 1, T...)
+    pw = _windows(phi, starts, tile, True)[:, :, None]  # (S, cap, 1, T...)
     own = xw[(Ellipsis,) + (slice(2, -2),) * nd]
     new = jnp.where(pw < limit, own + dt * advect(xw, vw, *spacing), own)
     # write the windows back; empty slots name solid S, out of bounds, and are dropped
@@ -271,4 +253,4 @@ def mix(s_f, rho_f, A, Tc, B, Tn):
 
 
 __all__ = ["ERF_ZERO", "Listed", "advect_maps", "blend_contributions", "cutoff", "gather",
-           "mix", "n_tiles", "node_tile_min", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
+           "mix", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
