@@ -17,7 +17,8 @@ Each is moved 5 steps, then ``--steps`` steps of fixed dt are timed ``--reps`` t
 kept).  The map smoothing runs its full ``smooth_max_sweeps`` (80) sweeps every step
 (``Numerics.fixed_smooth_sweeps``), its real cost once a body has deformed (the adaptive
 rule stops after a few sweeps on the nearly affine maps of the first steps);
-``--adaptive`` keeps the adaptive rule.  Per tree and case it reports:
+``--adaptive`` keeps the adaptive rule, and ``--warm-up T`` first advances the case to
+t = T so that it runs on deformed bodies.  Per tree and case it reports:
 
 * ``step_ms``: CPU time of the process per step (one thread, so CPU time is the time the
   step needs; on a shared machine it varies far less than wall time), and ``wall_ms``;
@@ -60,7 +61,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # the same thread pool
 SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
-# measured in the tree's own process; CASE, N, SIZE, STEPS, REPS, FIXED are prepended
+# measured in the tree's own process; CASE, N, SIZE, STEPS, REPS, FIXED, WARM are prepended
 _MEASURE = r"""
 import json, time
 from dataclasses import replace
@@ -92,6 +93,8 @@ def build():
 model, params = build()
 state = jax.jit(model.initial_state)(params)
 state = jax.jit(lambda s: model.run_steps(s, params, 5))(state)  # a few steps under way
+if WARM > 0:  # deformed bodies: the adaptive smoothing no longer stops at once
+    state = jax.jit(lambda s: model.advance(s, params, WARM)[0])(state)
 dt = model.time_step(state, params)[0]
 run = jax.jit(lambda s: model.run_steps(s, params, STEPS, dt=dt))
 
@@ -144,9 +147,9 @@ def _command() -> list[str]:
 
 
 def measure(tree: Path, case: str, n_solids: int, size: int, steps: int, reps: int,
-            fixed: bool) -> dict:
+            fixed: bool, warm: float = 0.0) -> dict:
     head = (f"CASE = {case!r}\nN = {n_solids}\nSIZE = {size}\nSTEPS = {steps}\nREPS = {reps}\n"
-            f"FIXED = {fixed!r}\n")
+            f"FIXED = {fixed!r}\nWARM = {warm!r}\n")
     env = dict(os.environ, PYTHONPATH=str(tree / "src"), XLA_FLAGS=SINGLE_THREAD,
                OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     r = subprocess.run(_command() + ["-c", head + _MEASURE], cwd=tree, env=env,
@@ -185,6 +188,9 @@ def main(argv=None) -> int:
                     help="processes per tree and case, alternating old/new (best kept)")
     ap.add_argument("--adaptive", action="store_true",
                     help="adaptive smoothing instead of the full fixed sweeps")
+    ap.add_argument("--warm-up", type=float, default=0.0,
+                    help="simulated time to advance (adaptive dt) before timing, so that the "
+                         "bodies have deformed (with --adaptive: the smoothing's real cost)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     a = ap.parse_args(argv)
     sizes = [int(s) for s in a.sizes.split(",") if s.strip()]
@@ -214,7 +220,7 @@ def main(argv=None) -> int:
                         for label in order:
                             tree = trees[0 if label == "old" else 1][0]
                             runs[label].append(measure(tree, case, N, size, a.steps, a.reps,
-                                                       not a.adaptive))
+                                                       not a.adaptive, a.warm_up))
                             print(f"  {key}: {label} round {r + 1} "
                                   f"{runs[label][-1]['step_ms']:.2f} ms/step", file=sys.stderr,
                                   flush=True)
@@ -229,7 +235,8 @@ def main(argv=None) -> int:
                                    capture_output=True)
     print(f"old = {trees[0][1]}, new = {trees[1][1]}; {a.steps} steps x best of {a.reps} calls "
           f"x best of {a.rounds} processes; smoothing: "
-          f"{'adaptive' if a.adaptive else 'fixed 80 sweeps'}")
+          f"{'adaptive' if a.adaptive else 'fixed 80 sweeps'}"
+          + (f", timed after t = {a.warm_up:g}" if a.warm_up > 0 else ""))
     print(f"{'case':16s} {'figure':16s} {'old':>10s} {'new':>10s} {'new/old':>8s}")
     for key, r in res.items():
         for name, title, fmt in FIGURES:

@@ -269,6 +269,8 @@ MALFORMED = [
     (_set(("numerics", "cfl"), 3), "numerics.cfl: must be <= 1 (got 3)"),
     (_set(("numerics", "stress_band"), 9.0), "numerics.stress_band:"),
     (_set(("numerics", "blend"), "gauss"), "numerics.blend"),
+    (_set(("numerics", "smooth_check_every"), 0), "numerics.smooth_check_every: must be >= 1 (got 0)"),
+    (_set(("numerics", "smooth_check_every"), 2.5), "numerics.smooth_check_every: must be an integer (got 2.5)"),
     (_set(("fluid", "rho0"), 0), "fluid.rho0: must be > 0 (got 0)"),
     (_set(("fluid", "eta"), math.nan), "fluid.eta: must be a finite number (got nan)"),
     (_rename(("fluid", "eta"), "etta"), "fluid: unknown key 'etta' (did you mean 'eta'?)"),

@@ -25,7 +25,7 @@ extrapolate_jit = jax.jit(
 )
 smooth_jit = jax.jit(
     smooth_extrapolated,
-    static_argnames=("max_sweeps", "periodic", "fixed_sweeps", "return_sweeps"),
+    static_argnames=("max_sweeps", "periodic", "fixed_sweeps", "return_sweeps", "check_every"),
 )
 
 
@@ -311,6 +311,58 @@ def test_smoothing_batch_counts_each_component():
     out, sweeps = smooth_jit(both, phi, G64.dx, G64.dy, BAND, return_sweeps=True)
     np.testing.assert_array_equal(np.asarray(sweeps), [0, 80])
     np.testing.assert_array_equal(np.asarray(out[0]), f)
+
+
+def _criterion_case():
+    """A curved field whose smoothing stops part-way at ratio 1.5 (see above)."""
+    X, Y = G64.mesh()
+    phi = np.hypot(X, Y) - 0.8
+    f = np.sin(2 * X) * np.cos(2 * Y)
+    e = extrapolate_jit(np.where(phi < 0, f, 0.0), phi, G64.dx, G64.dy, BAND)
+    return striated(G64, phi, np.asarray(e), 30, 0.01), phi
+
+
+@pytest.mark.parametrize("m", [3, 4, 5, 8])
+def test_smoothing_tested_every_m_sweeps(m):
+    """Testing the rule every m sweeps stops at the first test at or after the sweep where
+    testing every sweep stops, and the result is that many plain sweeps."""
+    f_in, phi = _criterion_case()
+    _, k1 = smooth_jit(f_in, phi, G64.dx, G64.dy, BAND, ratio=1.5, return_sweeps=True)
+    k1 = int(k1)
+    assert 0 < k1 < 80 and k1 % m  # the block structure is exercised
+    out, km = smooth_jit(
+        f_in, phi, G64.dx, G64.dy, BAND, ratio=1.5, return_sweeps=True, check_every=m
+    )
+    km = int(km)
+    # the tests before sweeps 0, m, ... below k1 see the same fields as before and fail;
+    # the next one sees a field smoothed further, which the rule passes here
+    assert km == -(-k1 // m) * m
+    fixed = smooth_jit(f_in, phi, G64.dx, G64.dy, BAND, fixed_sweeps=km)
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(fixed))
+
+
+@pytest.mark.parametrize("max_sweeps", [80, 7])
+def test_smoothing_tested_every_m_sweeps_to_the_cap_is_unchanged(max_sweeps):
+    """Run to max_sweeps (also one that m does not divide), the result is bit for bit the
+    rule tested before every sweep; an affine field still stops at once; batch elements
+    keep their own counts."""
+    X, Y = G64.mesh()
+    phi = np.hypot(X, Y) - 0.8
+    f = 0.3 * X - 1.2 * Y
+    both = np.stack([f, striated(G64, phi, f, 24, 0.05)])
+    ref, k_ref = smooth_jit(both, phi, G64.dx, G64.dy, BAND, max_sweeps=max_sweeps, return_sweeps=True)
+    out, k4 = smooth_jit(
+        both, phi, G64.dx, G64.dy, BAND, max_sweeps=max_sweeps, return_sweeps=True, check_every=4
+    )
+    np.testing.assert_array_equal(np.asarray(k4), [0, max_sweeps])
+    np.testing.assert_array_equal(np.asarray(k4), np.asarray(k_ref))
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(ref))
+
+
+def test_smoothing_check_every_must_be_positive():
+    f_in, phi = _criterion_case()
+    with pytest.raises(ValueError, match="check_every must be an integer >= 1, got 0"):
+        smooth_extrapolated(f_in, phi, G64.dx, G64.dy, BAND, check_every=0)
 
 
 def test_reverse_mode_gradient():

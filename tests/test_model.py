@@ -296,3 +296,9 @@ def test_fluid_mass_conserved_in_a_closed_box():
         Model(Grid(16, 16, 0.0, 1.0, 0.0, 1.0), (solid,), inflow, Numerics(fluid_mass="conserved"))
     with pytest.raises(ValueError, match="fluid_mass"):
         Numerics(fluid_mass="exact")
+
+
+@pytest.mark.parametrize("bad", [0, -2, 1.5, True])
+def test_numerics_smooth_check_every_is_checked(bad):
+    with pytest.raises(ValueError, match=f"smooth_check_every .* got {bad!r}"):
+        Numerics(smooth_check_every=bad)

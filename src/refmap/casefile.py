@@ -379,6 +379,7 @@ NumericsSpec = _spec_from_dataclass(
         "smooth_max_sweeps": {"ge": 0},
         "smooth_ratio": {"ge": 0},
         "smooth_atol": {"ge": 0},
+        "smooth_check_every": {"ge": 1},
         "fixed_smooth_sweeps": {"ge": 0},
         "cfl": {"gt": 0, "le": 1},
         "dt_max": {"gt": 0},

@@ -381,6 +381,7 @@ def smooth_extrapolated(
     periodic: Periodic | None = None,
     fixed_sweeps: int | None = None,
     return_sweeps: bool = False,
+    check_every: int = 1,
     *,
     dz=None,
 ):
@@ -402,7 +403,13 @@ def smooth_extrapolated(
     every axis, or after ``max_sweeps`` sweeps.  The thesis's values are ``coef = 0.025``
     (its ``0.000025`` at ``dx = 4/128``), ``ratio = 0.25``, at most 80 sweeps.  With a
     leading batch axis the rule is applied to each element separately (as ``vmap`` of
-    ``while_loop`` would).
+    ``while_loop`` would).  With ``check_every = m > 1`` the rule is tested only before
+    sweeps 0, m, 2m, ...: a test passed there stops at once, a test failed there is
+    followed by m sweeps (fewer where ``max_sweeps`` ends first), so the loop does up to
+    ``m - 1`` sweeps more than the test before every sweep would, and the same when it runs
+    to ``max_sweeps`` or stops at once (an affine field).  The test costs as much as a
+    sweep (a second pass over the stencil that XLA does not fuse with the update), so
+    ``m = 4`` makes a run of the full 80 sweeps about 1.7x cheaper.
 
     For reverse-mode differentiation pass ``fixed_sweeps=k``: exactly ``k`` sweeps in a
     ``fori_loop``, no stopping rule.
@@ -430,6 +437,7 @@ def smooth_extrapolated(
         max_sweeps: cap on the sweeps of the while-loop (static).
         periodic: static (x, y[, z]) wrap flags (default none).
         fixed_sweeps: static; if given, run exactly this many sweeps instead.
+        check_every: static; sweeps per test of the stopping rule (1: before every sweep).
         return_sweeps: static; also return the number of sweeps done (per batch element).
         dz: the z spacing: given, the arrays are 3D.
 
@@ -468,6 +476,7 @@ def smooth_extrapolated(
         fixed_sweeps,
         return_sweeps,
         grid_ndim=d,
+        check_every=check_every,
     )
 
 
@@ -497,11 +506,15 @@ def _smooth_core(
     fixed_sweeps,
     return_sweeps,
     grid_ndim,
+    check_every=1,
 ):
     """The sweeps of :func:`smooth_extrapolated` on any layout (see :func:`_extrapolate_core`):
     ``f`` and the masks are layout arrays whose last ``grid_ndim`` axes are the layout's,
     ``ok`` one second-difference mask per axis, ``h`` the spacings, ``limits`` the per-batch
-    stopping limits, one per axis (None with ``fixed_sweeps``)."""
+    stopping limits, one per axis (None with ``fixed_sweeps``), ``check_every`` the sweeps
+    per test of the stopping rule."""
+    if not (isinstance(check_every, int) and check_every >= 1):
+        raise ValueError(f"smoothing check_every must be an integer >= 1, got {check_every!r}")
     axes = tuple(range(-grid_ndim, 0))
     batch = f.shape[:-grid_ndim]
 
@@ -536,7 +549,17 @@ def _smooth_core(
             excess = jnp.maximum(excess, jnp.abs(dd) - lim)
         active = jnp.max(jnp.where(ext, excess, -1.0), axis=axes) > 0
         f = sweep_with(f, d2, expand(active))
-        return k + 1, f, active, count + active.astype(jnp.int32)
+        if check_every == 1:
+            return k + 1, f, active, count + active.astype(jnp.int32)
+
+        # the block's other sweeps, untested (none past max_sweeps)
+        def untested(j, f):
+            on = expand(active & (k + j < max_sweeps))
+            return sweep_with(f, _second_differences(f, ok, h, nb, fill), on)
+
+        f = lax.fori_loop(1, check_every, untested, f)
+        done = jnp.minimum(check_every, max_sweeps - k)
+        return k + check_every, f, active, count + done * active.astype(jnp.int32)
 
     state = (jnp.int32(0), f, jnp.ones(batch, dtype=bool), jnp.zeros(batch, dtype=jnp.int32))
     _, f, _, count = lax.while_loop(cond, body, state)
@@ -828,6 +851,7 @@ def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smoot
         fixed_sweeps,
         False,
         grid_ndim=nd + 1,
+        check_every=smooth.get("check_every", 1),
     )
     return nbm.scatter(f, index, f_s)
 

@@ -512,6 +512,7 @@ class Model:
             max_sweeps=n.smooth_max_sweeps,
             ratio=n.smooth_ratio,
             atol=n.smooth_atol,
+            check_every=n.smooth_check_every,
             fixed_sweeps=n.fixed_smooth_sweeps if fixed_sweeps is None else fixed_sweeps,
         )
         return extrapolation.extend(

@@ -125,7 +125,11 @@ class Numerics:
 
     Defaults follow the thesis: blur width 2h (H = (1 + erf(phi / (2h))) / 2), reference map
     extrapolated ~6h out, smoothing
-    of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.
+    of extrapolated values with coefficient 0.025 h^2 for at most 80 sweeps.  The
+    smoothing's stopping rule is tested every ``smooth_check_every`` sweeps (default 4; 1
+    tests before every sweep, as the thesis's Algorithm 3 would): a run of all 80 sweeps,
+    the usual case, is then 1.7x cheaper, and a stop comes up to 3 sweeps later
+    (:func:`refmap.extrapolation.smooth_extrapolated`).
 
     Pinning: each step phi = phi0(xi) is copied at the nodes next to the zero contour,
     |phi| < ``pin_copy`` h, so the zero level set is the material's; elsewhere in the zone
@@ -241,6 +245,7 @@ class Numerics:
     smooth_max_sweeps: int = 80
     smooth_ratio: float = 0.25
     smooth_atol: float = 1e-3
+    smooth_check_every: int = 4
     fixed_smooth_sweeps: int | None = None
     cfl: float = 0.5
     dt_max: float | None = None
@@ -312,6 +317,12 @@ class Numerics:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 0:
                 raise ValueError(f"numerics {name} must be an integer >= 0, got {v!r}")
+        v = self.smooth_check_every
+        if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+            raise ValueError(
+                f"numerics smooth_check_every (sweeps per test of the smoothing's stopping rule) "
+                f"must be an integer >= 1, got {v!r}"
+            )
         vc = self.volume_correction
         if not (isinstance(vc, (int, float)) and 0.0 <= vc < float("inf")):
             raise ValueError(
