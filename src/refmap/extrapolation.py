@@ -549,10 +549,8 @@ def _smooth_core(
             excess = jnp.maximum(excess, jnp.abs(dd) - lim)
         active = jnp.max(jnp.where(ext, excess, -1.0), axis=axes) > 0
         f = sweep_with(f, d2, expand(active))
-        if check_every == 1:
-            return k + 1, f, active, count + active.astype(jnp.int32)
 
-        # the block's other sweeps, untested (none past max_sweeps)
+        # the block's other sweeps, untested (none past max_sweeps; none when m = 1)
         def untested(j, f):
             on = expand(active & (k + j < max_sweeps))
             return sweep_with(f, _second_differences(f, ok, h, nb, fill), on)
@@ -588,7 +586,7 @@ def extend(
     ``f`` is ``(S, C, nx, ny)`` (C components per solid sharing its level set), ``phi``
     ``(S, nx, ny)``; in 3D (``dz`` given) ``(S, C, nx, ny, nz)`` and ``(S, nx, ny, nz)``.
     ``smooth`` holds the keyword arguments of the smoothing (``coef``, ``max_sweeps``,
-    ``ratio``, ``atol``, ``fixed_sweeps``; None: no smoothing).
+    ``ratio``, ``atol``, ``check_every``, ``fixed_sweeps``; None: no smoothing).
 
     With ``capacity=None`` every sweep runs over the whole grid.  With an integer
     ``capacity`` (a number of tiles) the sweeps run on each solid's band only
