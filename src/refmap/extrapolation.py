@@ -769,9 +769,9 @@ def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smoot
     nbm = narrowband
     nd = len(h)
     tiles = nbm.build_from_flags(flags, capacity, periodic)
-    nb = nbm.Neighbours(tiles)
+    nb = nbm.Neighbours(tiles, cap_last=True)
     never = jnp.int32(iters + 1)
-    slot = tiles.slot.reshape((-1,) + (1,) * nd)
+    slot = tiles.slot  # the sweeps run with the slot axis innermost (nbm.cap_last)
 
     # tiles with two ghost rows; everything the sweeps need is formed on them, the first
     # ghost row giving the fixed edge values next to tiles that are not listed
@@ -786,18 +786,24 @@ def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smoot
     af1 = jnp.where(solid1, 0, never).astype(jnp.int32)
     g1 = [jnp.where(gvalid1, g, 0.0) for g in g1]
     f1z = jnp.where(solid1, f1, 0.0)
+    # from here on in the sweeps' layout (..., tx + 2, ty + 2[, tz + 2], cap)
+    g1 = [nbm.cap_last(g, nd) for g in g1]
+    gvalid1, ag1, af1, f1z, f1, solid1, valid1 = (
+        nbm.cap_last(a, nd) for a in (gvalid1, ag1, af1, f1z, f1, solid1, valid1)
+    )
 
     def inner(a):
-        return nbm.interior(a, 1, nd)
+        return nbm.interior(a, 1, nd, tail=1)
 
     def halos(a):
-        return nbm.halos(a, nd)
+        return nbm.halos(a, nd, tail=1)
 
     gvalid, solid, valid = inner(gvalid1), inner(solid1), inner(valid1)
     update_g = valid & ~gvalid & slot
     update_f = valid & ~solid & slot
     dz = {"dz": h[2]} if nd == 3 else {}
     normal = nbm.gather(unit_normal(phi, h[0], h[1], periodic, **dz), tiles, tile, periodic, 0.0, halo=0)
+    normal = nbm.cap_last(normal, nd)
     fixed_g = dict(known=halos(gvalid1), arrival=halos(ag1), value=tuple(halos(g) for g in g1))
     fixed_f = dict(known=halos(solid1), arrival=halos(af1), value=halos(f1z))
     f_ext, done = _extrapolate_core(
@@ -816,7 +822,7 @@ def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smoot
     f_t = jnp.where(done, f_ext, inner(f1))
     index = nbm.node_index(tiles, tile, phi.shape)
     if smooth is None:
-        return nbm.scatter(f, index, f_t)
+        return nbm.scatter(f, index, nbm.cap_first(f_t, nd))
 
     fixed_sweeps = smooth.get("fixed_sweeps")
     hmin = jnp.minimum(h[0], h[1])
@@ -825,7 +831,7 @@ def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smoot
     limits = None
     if fixed_sweeps is None:
         # the interior's second differences (phi < -2h), read from the extrapolated field
-        f = nbm.scatter(f, index, f_t)
+        f = nbm.scatter(f, index, nbm.cap_first(f_t, nd))
         dnb = _DenseNeighbours(periodic)
         limits = _interior_limits(
             f,
@@ -839,7 +845,7 @@ def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smoot
     f_s = _smooth_core(
         f_t,
         update_f,
-        tuple(vm & vp for vm, vp in _pairs(nbm.stencil_neighbours(valid1, nd))),
+        tuple(vm & vp for vm, vp in _pairs(nbm.stencil_neighbours(valid1, nd, tail=1))),
         limits,
         nb,
         halos(f1),
@@ -851,7 +857,7 @@ def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smoot
         grid_ndim=nd + 1,
         check_every=smooth.get("check_every", 1),
     )
-    return nbm.scatter(f, index, f_s)
+    return nbm.scatter(f, index, nbm.cap_first(f_s, nd))
 
 
 __all__ = [
