@@ -206,6 +206,19 @@ def sym_from_components(components, dim: int) -> jax.Array:
     return _sym_matrix(dict(zip(pairs, components, strict=True)), dim)
 
 
+def _scaled_plus_pressure(g: jax.Array, D: jax.Array, p: jax.Array) -> jax.Array:
+    """``g D + p I`` for node scalars ``g``, ``p`` (...) and a stack ``D`` (..., d, d).
+
+    Written as a product with the broadcast scalars rather than as a stack of the entries
+    ``g D_ij + p delta_ij``: XLA fuses a stack's arithmetic into one loop over its ``d x d``
+    entries, so each entry would recompute the node's scalars (the cube root of J costs
+    about 20 ns on a CPU core, ``d^2`` times per node); it does not fuse an expensive
+    scalar into a broadcast, so here they are computed once per node.  The entries are the
+    same numbers (off the diagonal ``g D_ij + 0 p``)."""
+    d = D.shape[-1]
+    return g[..., None, None] * D + p[..., None, None] * jnp.eye(d, dtype=D.dtype)
+
+
 def _sym2(s00: jax.Array, s01: jax.Array, s11: jax.Array) -> jax.Array:
     """Assemble a symmetric (..., 2, 2) tensor from its three independent components."""
     row0 = jnp.stack([s00, s01], axis=-1)
@@ -566,9 +579,8 @@ class NeoHookean(HyperelasticLaw):
             c = jnp.cbrt(J)
             g = self.G / (J * c * c)
             p = self.kappa * (J - 1.0)
-            return _sym_matrix(
-                {k: g * (v - third_tr) + p if k[0] == k[1] else g * v for k, v in B.items()}, 3
-            )
+            dev = {k: v - third_tr if k[0] == k[1] else v for k, v in B.items()}
+            return _scaled_plus_pressure(g, _sym_matrix(dev, 3), p)
         F00, F01, F10, F11 = _components(F)
         J = F00 * F11 - F01 * F10
         B00 = F00 * F00 + F01 * F01
@@ -578,7 +590,7 @@ class NeoHookean(HyperelasticLaw):
         c = jnp.cbrt(J)
         g = self.G / (J * c * c)  # G J^(-5/3)
         p = self.kappa * (J - 1.0)
-        return _sym2(g * (B00 - third_tr3) + p, g * B01, g * (B11 - third_tr3) + p)
+        return _scaled_plus_pressure(g, _sym2(B00 - third_tr3, B01, B11 - third_tr3), p)
 
 
 @register_law
