@@ -280,3 +280,40 @@ def test_model_band_tiles_3d_equal_grid_sweeps():
     assert auto.band_capacity is not None  # 2 x 27 + 8 of 216 tiles
     case = get_case("sphere_relax", 32)  # its band lists all 64 tiles: full grid
     assert case.build()[0].band_capacity is None
+
+
+@pytest.mark.parametrize(
+    "shape, tile, periodic",
+    [((16, 12), (4, 4), (True, False)), ((12, 8, 9), (4, 4, 3), (True, False, True))],
+)
+@pytest.mark.parametrize("cap_last", [False, True])
+def test_neighbours_read_the_grid_in_both_layouts(shape, tile, periodic, cap_last):
+    """The tile neighbours (inside a tile by shifting, across a face from the listed
+    neighbour tile or from the fixed faces) are the field's own grid neighbours, in the
+    tile-major layout and in the sweeps' slot-innermost one: every node of every listed
+    tile, against the same tiles gathered from the grid with one ghost row."""
+    rng = np.random.default_rng(3)
+    nd = len(shape)
+    mask = rng.random(shape) < 0.04
+    cap = int(narrowband.tile_flags(jnp.asarray(mask), tile).sum()) + 2
+    t = narrowband.build(jnp.asarray(mask), cap, tile, periodic)
+    a = jnp.asarray(rng.standard_normal((2,) + shape))
+    ghosted = narrowband.gather(a, t, tile, periodic, 0.0, halo=1)  # (2, cap, t + 2, ...)
+    inner = narrowband.interior(ghosted, 1, nd)
+    fixed = narrowband.halos(ghosted, nd)
+    expect = narrowband.stencil_neighbours(ghosted, nd)
+    if cap_last:
+        inner = narrowband.cap_last(inner, nd)
+        fixed = tuple(narrowband.cap_last(f, nd - 1) for f in fixed)
+        expect = tuple(narrowband.cap_last(e, nd) for e in expect)
+    got = narrowband.Neighbours(t, cap_last=cap_last)(inner, fixed)
+    slots = int(t.count)
+    for g, e in zip(got, expect, strict=True):
+        g, e = np.asarray(g), np.asarray(e)
+        if cap_last:
+            g, e = g[..., :slots], e[..., :slots]
+        else:
+            g, e = g[:, :slots], e[:, :slots]
+        np.testing.assert_array_equal(g, e)
+    back = narrowband.cap_first(narrowband.cap_last(ghosted, nd), nd)
+    np.testing.assert_array_equal(np.asarray(back), np.asarray(ghosted))
