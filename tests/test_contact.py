@@ -35,6 +35,30 @@ def _init(model, params):
     return jax.jit(model.initial_state)(params)
 
 
+# ---------------------------------------------------------------- pair search
+@pytest.mark.parametrize("n_solids, shape", [(2, (6, 7)), (5, (4, 5, 3)), (40, (9, 8))])
+@pytest.mark.parametrize("step", [0.5, 1e-7])
+def test_two_nearest_equals_two_argmin_passes(n_solids, shape, step):
+    """The one-pass search of the two nearest solids gives the indices of two argmin passes
+    (the second with the first's masked out), ties to the lower index: values on a coarse
+    lattice make many ties, a row of +inf makes every value tie."""
+    from refmap.contact import _two_nearest
+
+    rng = np.random.default_rng(n_solids)
+    phi = np.round(rng.normal(size=(n_solids, *shape)) / step) * step
+    phi[:, 0] = np.inf
+    phi[1:, -1] = phi[0, -1]  # every solid ties with the first
+    phi = jnp.asarray(phi)
+    a, b = jax.jit(_two_nearest)(phi)
+    a_ref = jnp.argmin(phi, axis=0)
+    k = jnp.arange(n_solids).reshape((-1,) + (1,) * len(shape))
+    b_ref = jnp.argmin(jnp.where(k == a_ref[None], jnp.inf, phi), axis=0)
+    assert a.dtype == a_ref.dtype and b.dtype == b_ref.dtype
+    np.testing.assert_array_equal(a, a_ref)
+    np.testing.assert_array_equal(b, b_ref)
+    assert bool(jnp.all(a[0] == 0)) and bool(jnp.all(b[0] == 0))  # the +inf row
+
+
 # ---------------------------------------------------------------- mixing rule
 def test_solid_fractions_partition_of_unity_with_overlapping_blur_zones():
     """Three discs whose blur zones overlap (two of them even overlap as bodies): the node

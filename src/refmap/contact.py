@@ -62,7 +62,7 @@ by the fluid fraction).  As the divergence of a stress, the force
 * varies smoothly over a few cells (widths 3 h and 1 h below).
 
 Many solids.  At each corner only the nearest and the second-nearest solid (the two
-smallest phi_k, two ``argmin`` passes over the solid axis) form the pair: O(N) work per
+smallest phi_k, one pass over the solid axis) form the pair: O(N) work per
 corner, not O(N^2).  A corner where three bodies meet sees its two nearest only.
 
 Walls.  Each non-periodic domain edge (face in 3D) is an obstacle whose distance phi_w
@@ -113,6 +113,7 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 from refmap import blend
 from refmap.operators import SYM_PAIRS, div_node
@@ -306,12 +307,31 @@ def _take(field, idx):
 def _two_nearest(phi):
     """Indices of the nearest (a) and second-nearest (b) solid at every point, N >= 2.
 
-    Two ``argmin`` passes over the solid axis: O(N) per point.  (``lax.top_k`` does the same
-    but is about 50 times slower on CPU.)  Ties go to the lower index.
+    One pass over the solids (a ``fori_loop``) that keeps the two smallest values and their
+    indices at every point: O(N) per point.  Ties go to the lower index, as with two
+    ``argmin`` passes (the second over the values with ``a``'s masked out), which this
+    equals for every finite input: a value replaces the smallest only if strictly smaller,
+    and the second smallest likewise.  Where every value is +inf both are 0, as there.
+    XLA's CPU ``argmin`` over the leading axis is a variadic reduction that it does not
+    vectorise: two passes took 98 ms for 100 solids on 301^2 corners, this 28 ms; and
+    ``lax.top_k`` is about 50 times slower still.
     """
-    a = jnp.argmin(phi, axis=0)
-    k = jnp.arange(phi.shape[0]).reshape((-1,) + (1,) * (phi.ndim - 1))
-    b = jnp.argmin(jnp.where(k == a[None], jnp.inf, phi), axis=0)
+    phi = lax.stop_gradient(phi)  # indices only: no derivative, and no tangents in the loop
+    inf = jnp.full(phi.shape[1:], jnp.inf, dtype=phi.dtype)
+    zero = jnp.zeros(phi.shape[1:], dtype=jax.dtypes.canonicalize_dtype(jnp.int64))  # argmin's
+
+    def visit(k, best):
+        m1, a, m2, b = best
+        v = phi[k]
+        first, second = v < m1, v < m2
+        return (
+            jnp.where(first, v, m1),
+            jnp.where(first, k, a),
+            jnp.where(first, m1, jnp.where(second, v, m2)),
+            jnp.where(first, a, jnp.where(second, k, b)),
+        )
+
+    _, a, _, b = lax.fori_loop(0, phi.shape[0], visit, (inf, zero, inf, zero))
     return a, b
 
 
