@@ -762,6 +762,31 @@ def band_tiles(phi, band, tile, periodic: Periodic | None = None):
     )(phi)
 
 
+def _tile_normal(P, h, periodic):
+    """:func:`refmap.levelset.unit_normal` at the inner nodes of tiles gathered with two
+    ghost rows and +inf beyond a non-periodic edge (P (cap, tx + 4, ty + 4[, tz + 4])):
+    (d, cap, tx, ty[, tz]), 0 at nodes beyond the grid, as the gathered full-grid normal."""
+    nd = len(h)
+    P1 = narrowband.interior(P, 1, nd)
+    out1 = jnp.isinf(P1)
+    Ps = jnp.where(out1, 0.0, P1)  # finite everywhere (no NaN in reverse mode)
+    c = narrowband.interior(Ps, 1, nd)
+    nbs = narrowband.stencil_neighbours(Ps, nd)
+    onb = narrowband.stencil_neighbours(out1, nd)
+    pairs = []
+    for a in range(nd):
+        m, p = nbs[2 * a], nbs[2 * a + 1]
+        if not periodic[a]:  # the linear ghost 2 a_0 - a_1 beyond the edge
+            m, p = jnp.where(onb[2 * a], 2 * c - p, m), jnp.where(onb[2 * a + 1], 2 * c - m, p)
+        pairs.append((m, p))
+    g = [(p - m) / (2 * h[a]) for a, (m, p) in enumerate(pairs)]
+    mag2 = _sum([ga * ga for ga in g])
+    nonzero = mag2 > 0
+    inv = jnp.where(nonzero, 1 / jnp.sqrt(jnp.where(nonzero, mag2, 1.0)), 0.0)
+    beyond = narrowband.interior(out1, 1, nd)
+    return jnp.stack([jnp.where(beyond, 0.0, ga * inv) for ga in g])
+
+
 def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smooth):
     """:func:`extend` for one solid on its listed tiles (f (C, nx, ny[, nz]), phi (nx, ny[,
     nz]), the flags (ntx, nty[, ntz]) of the tiles holding a node to update, ``h`` the
@@ -801,8 +826,7 @@ def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smoot
     gvalid, solid, valid = inner(gvalid1), inner(solid1), inner(valid1)
     update_g = valid & ~gvalid & slot
     update_f = valid & ~solid & slot
-    dz = {"dz": h[2]} if nd == 3 else {}
-    normal = nbm.gather(unit_normal(phi, h[0], h[1], periodic, **dz), tiles, tile, periodic, 0.0, halo=0)
+    normal = _tile_normal(P, h, periodic)
     normal = nbm.cap_last(normal, nd)
     fixed_g = dict(known=halos(gvalid1), arrival=halos(ag1), value=tuple(halos(g) for g in g1))
     fixed_f = dict(known=halos(solid1), arrival=halos(af1), value=halos(f1z))
