@@ -995,6 +995,18 @@ class Model:
         v_new = v + dt * acc
         if implicit:
             v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt)
+        # the anchors' velocities come before anything that moves with the new velocity:
+        # the projection (incompressible: their nodes keep them, correction weight
+        # 1 - w_anchor, so the projected velocity is divergence-free with them) and the
+        # symplectic transport of implicit viscosity (the maps of a held hub must move
+        # with the held velocity, not with the free one the solve gives)
+        anchors_first = implicit or self.projection is not None
+        if anchors_first:
+            xi0 = jnp.asarray(self._xi0)
+            for k, s in enumerate(self.solids):
+                if s.anchor is not None:
+                    v_new, _ = s.anchor.apply(g, v_new, state.xi[k], xi0[k])
+        if implicit:
             # the transported fields move with the updated velocity (symplectic Euler, see
             # time_step): the fluid density here, the reference maps below
             vq, vqp = v_new, bc.pad_velocity(v_new, t + dt)
@@ -1003,12 +1015,6 @@ class Model:
         if self.projection is not None:
             # incompressible: the fluid pressure is the projection's (rho_f stays rho0, so
             # the pressure lambda_f (rho_f / rho0 - 1) in the stress above is zero)
-            # the anchors' velocities first; their nodes keep them (correction weight
-            # 1 - w_anchor), so the projected velocity is divergence-free with them
-            xi0 = jnp.asarray(self._xi0)
-            for k, s in enumerate(self.solids):
-                if s.anchor is not None:
-                    v_new, _ = s.anchor.apply(g, v_new, state.xi[k], xi0[k])
             projected = self.projection.project(v_new, d["rho"], t + dt, dt,
                                                 weight=self._anchor_free,
                                                 source=self.volume_source(d, dt),
@@ -1054,7 +1060,7 @@ class Model:
         for k, s in enumerate(self.solids):
             if s.anchor is not None:
                 v_k, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])
-                if self.projection is None:  # incompressible: applied before the projection
+                if not anchors_first:  # else applied to the velocity above
                     v_new = v_k
                 xi_new = xi_new.at[k].set(xk)
 
