@@ -9,7 +9,7 @@ trees alternate (old, new, new, old, ...) so that a change in the machine's load
 Cases (each at every ``--sizes`` n):
 
 * ``rotor``: the rotor scenario (one solid with a pivot anchor, open edges), as in
-  benchmarks/bench_step.py;
+  benchmarks/bench_step.py, with the explicit viscous step in every revision;
 * ``discsN``: N discs on a lattice in a closed box with contact and gravity, as in
   benchmarks/bench_contact.py (``refmap.contact._lattice_of_discs``), for N in ``--counts``.
 
@@ -73,6 +73,9 @@ def build():
     if CASE == "rotor":
         from refmap.scenarios import get_case
         case = get_case("rotor", SIZE)
+        # the explicit step, so that revisions before and after the scenario's switch to
+        # implicit viscosity (2026-12-05) time the same work
+        case = case.replace(numerics=replace(case.numerics, viscosity="explicit"))
         if FIXED:
             case = case.replace(numerics=replace(case.numerics,
                                                  fixed_smooth_sweeps=case.numerics.smooth_max_sweeps))

@@ -273,6 +273,8 @@ def test_cli_small_rotor_ladder_end_to_end_and_order_bound(tmp_path):
             str(CI_T),
             "--out",
             str(out),
+            "--viscosity",
+            "explicit",
         ],
     )
     assert r.exit_code == 0, r.output
@@ -280,6 +282,7 @@ def test_cli_small_rotor_ladder_end_to_end_and_order_bound(tmp_path):
     for n in (24, 32, 48, 96):
         h = load_rung(out / f"rotor_n{n}.npz")["header"]
         assert h["n"] == n and h["t_end"] == CI_T and h["scenario"] == "rotor"
+        assert h["viscosity"] == "explicit"
     assert (out / "convergence.png").stat().st_size > 10_000
     rows = [ln.split(",") for ln in (out / "convergence.csv").read_text().splitlines()]
     head, rows = rows[0], [dict(zip(rows[0], x, strict=True)) for x in rows[1:]]
@@ -308,10 +311,19 @@ def test_cli_small_rotor_ladder_end_to_end_and_order_bound(tmp_path):
             str(CI_T),
             "--out",
             str(out),
+            "--viscosity",
+            "explicit",
         ],
     )
     assert r2.exit_code == 0, r2.output
     assert "finished earlier" in r2.output and "steps in" not in r2.output
+    # the scenario's own step is implicit: its rungs are not these, and they are refused
+    # by name rather than mixed into the study
+    args = ["convergence", "rotor", "--grids", CI_GRIDS, "--ref", str(CI_REF), "--t-end", str(CI_T)]
+    r3 = runner.invoke(app, [*args, "--out", str(out)])
+    assert r3.exit_code != 0 and "'viscosity': 'explicit'" in r3.output, r3.output
+    r4 = runner.invoke(app, [*args, "--out", str(out), "--viscosity", "sideways"])
+    assert r4.exit_code == 2 and "sideways" in r4.output, r4.output
 
 
 def test_parallel_jobs_run_every_rung(tmp_path):

@@ -108,9 +108,10 @@ def _check(res, names):
 
 
 def test_sharded_rotor_equals_one_device():
-    # open edges, an inflow edge (where ENO ties are structural) and a pivot anchor (a global
-    # sum): 39 steps at 32^2 on 2 and 4 devices, and a Simulation with devices=2
-    _check(_run_devices([("rotor", 32, 0.02)], sim=True), ["rotor"])
+    # open edges, an inflow edge (where ENO ties are structural), a pivot anchor (a global
+    # sum) and the implicit viscous solve (global dot products): 33 steps at 32^2 on 2 and
+    # 4 devices, and a Simulation with devices=2
+    _check(_run_devices([("rotor", 32, 0.25)], sim=True), ["rotor"])
 
 
 def test_sharded_two_balls_equals_one_device():
@@ -128,7 +129,7 @@ def test_sharded_3d_equals_one_device():
 @pytest.mark.slow
 def test_sharded_equals_one_device_longer():
     # hundreds of steps at 64^2 (the round-off of the split sums must not grow)
-    res = _run_devices([("rotor", 64, 0.1), ("two_balls", 64, 0.3), ("circle", 64, 0.1)], sim=True)
+    res = _run_devices([("rotor", 64, 0.5), ("two_balls", 64, 0.3), ("circle", 64, 0.1)], sim=True)
     _check(res, ["rotor", "two_balls", "circle"])
 
 

@@ -79,8 +79,8 @@ def main(argv=None) -> int:
 
     if not a.no_run:
         if a.with_240:
-            run_ladder("rotor", [60, 72, 90, 120], 240, T_END, a.out, jobs=a.jobs)
-        run_ladder("rotor", LADDER, REF, T_END, a.out, jobs=a.jobs)
+            run_ladder("rotor", [60, 72, 90, 120], 240, T_END, a.out, jobs=a.jobs, viscosity="explicit")
+        run_ladder("rotor", LADDER, REF, T_END, a.out, jobs=a.jobs, viscosity="explicit")
     have = {n for n in [*LADDER, REF, 240] if rung_path(a.out, "rotor", n).exists()}
     lines = [
         "| comparison | rungs | reference | u | v | xi_x | xi_y | grad_xi |",

@@ -250,6 +250,9 @@ def convergence_cmd(
     jobs: int = typer.Option(1, "--jobs", min=1, help="rungs run at once, each in its own process"),
     margin: float = typer.Option(1.0, "--margin", min=0.0,
                                  help="compare xi and grad xi only where phi < -margin*h_coarse in every run"),
+    viscosity: str = typer.Option(None, "--viscosity",
+                                  help="explicit or implicit viscous step for every rung (default: the "
+                                       "scenario's; the thesis's rotor study is explicit)"),
 ):
     """Grid-convergence study: run a ladder of grids to a common time (finished rungs are
     reused), compare each with the reference on the coarsest grid's nodes (discrete L2 and
@@ -259,11 +262,13 @@ def convergence_cmd(
 
     try:
         check_study(scenario, grids, ref, t_end)
+        if viscosity is not None and viscosity not in ("explicit", "implicit"):
+            raise ConvergenceError(f"--viscosity must be 'explicit' or 'implicit', got {viscosity!r}")
     except ConvergenceError as e:
         _fail(str(e))
     out_dir = out if out is not None else Path("runs") / f"convergence_{scenario}"
     try:
-        st = study(scenario, grids, ref, t_end, out_dir, jobs=jobs, margin=margin)
+        st = study(scenario, grids, ref, t_end, out_dir, jobs=jobs, margin=margin, viscosity=viscosity)
     except ConvergenceError as e:
         _fail(str(e), 3)
     typer.echo(format_table(st))

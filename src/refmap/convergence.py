@@ -41,6 +41,7 @@ How it works
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -150,9 +151,10 @@ def _state_arrays(state) -> dict:
     return {k: np.asarray(getattr(state, k)) for k in ("t", "step", "v", "rho_f", "xi", "phi")}
 
 
-def _check_header(h: dict, path: Path, scenario: str, n: int, t_end: float):
-    want = dict(scenario=scenario, n=n, t_end=t_end)
-    got = {k: h.get(k) for k in want}
+def _check_header(h: dict, path: Path, scenario: str, n: int, t_end: float, viscosity: str):
+    want = dict(scenario=scenario, n=n, t_end=t_end, viscosity=viscosity)
+    # rungs written before the header named the viscous step were all explicit
+    got = {k: h.get(k, "explicit" if k == "viscosity" else None) for k in want}
     if got != want:
         raise ConvergenceError(
             f"{path} holds {got}, not {want}; use another output folder or delete the file"
@@ -169,11 +171,14 @@ def run_rung(
     checkpoint_s: float = 120.0,
     log=None,
     stop_after_chunks: int | None = None,
+    viscosity: str | None = None,
 ) -> dict:
     """Run one rung to ``t_end`` (or reuse the finished file); returns a summary dict.
 
-    ``stop_after_chunks`` (tests only) stops early after that many chunks, leaving a partial
-    checkpoint, to exercise the restart.
+    ``viscosity`` ("explicit" or "implicit") replaces the scenario's viscous step (None:
+    the scenario's own); it is recorded in the rung's header, and a finished rung made
+    with the other one is refused.  ``stop_after_chunks`` (tests only) stops early after
+    that many chunks, leaving a partial checkpoint, to exercise the restart.
     """
     import jax
     import jax.numpy as jnp
@@ -185,19 +190,24 @@ def run_rung(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     final = rung_path(out, scenario, n)
+    case = get_case(scenario, n).replace(t_end=float(t_end))
+    if viscosity is not None:
+        if viscosity not in ("explicit", "implicit"):
+            raise ConvergenceError(f"viscosity must be 'explicit' or 'implicit', got {viscosity!r}")
+        case = case.replace(numerics=dataclasses.replace(case.numerics, viscosity=viscosity))
+    viscosity = case.numerics.viscosity
     if final.exists():
         h = load_rung(final)["header"]
-        _check_header(h, final, scenario, n, t_end)
+        _check_header(h, final, scenario, n, t_end, viscosity)
         return dict(n=n, path=str(final), reused=True, steps=h["steps"], wall_s=h["wall_s"])
 
-    case = get_case(scenario, n).replace(t_end=float(t_end))
     model, params = case.build()
     partial = _partial_path(out, scenario, n)
     times = np.linspace(0.0, t_end, n_chunks + 1)[1:]
     if partial.exists():
         z = load_rung(partial)
         h = z["header"]
-        _check_header(h, partial, scenario, n, t_end)
+        _check_header(h, partial, scenario, n, t_end, viscosity)
         if h.get("n_chunks") != n_chunks:
             raise ConvergenceError(
                 f"{partial} was written with {h.get('n_chunks')} chunks, not {n_chunks}"
@@ -223,6 +233,7 @@ def run_rung(
         scenario=scenario,
         n=n,
         t_end=float(t_end),
+        viscosity=viscosity,
         n_chunks=n_chunks,
         grid=dict(
             nx=case.grid.nx,
@@ -275,8 +286,9 @@ def run_rung(
 
 
 def _rung_worker(args):
-    scenario, n, t_end, out, n_chunks, checkpoint_s = args
-    return run_rung(scenario, n, t_end, out, n_chunks=n_chunks, checkpoint_s=checkpoint_s)
+    scenario, n, t_end, out, n_chunks, checkpoint_s, viscosity = args
+    return run_rung(scenario, n, t_end, out, n_chunks=n_chunks, checkpoint_s=checkpoint_s,
+                    viscosity=viscosity)
 
 
 def run_ladder(
@@ -290,11 +302,13 @@ def run_ladder(
     n_chunks: int = 40,
     checkpoint_s: float = 120.0,
     log=None,
+    viscosity: str | None = None,
 ) -> dict[int, dict]:
     """Run (or reuse) every rung and the reference; returns {n: summary}.
 
     With ``jobs > 1`` the rungs run in that many separate processes (largest first, so the
-    long reference starts at once); each process runs one rung on one core.
+    long reference starts at once); each process runs one rung on one core.  ``viscosity``:
+    as in :func:`run_rung`, for every rung.
     """
     grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end)
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
@@ -308,14 +322,16 @@ def run_ladder(
     for n in order:
         p = rung_path(out, scenario, n)
         if p.exists():
-            results[n] = run_rung(scenario, n, t_end, out, n_chunks=n_chunks, log=log)
+            results[n] = run_rung(scenario, n, t_end, out, n_chunks=n_chunks, log=log,
+                                  viscosity=viscosity)
             log(f"[{scenario} n={n}] finished earlier: {p}")
         else:
             todo.append(n)
     if jobs == 1 or len(todo) <= 1:
         for n in todo:
             results[n] = run_rung(
-                scenario, n, t_end, out, n_chunks=n_chunks, checkpoint_s=checkpoint_s, log=log
+                scenario, n, t_end, out, n_chunks=n_chunks, checkpoint_s=checkpoint_s, log=log,
+                viscosity=viscosity,
             )
     else:
         import multiprocessing as mp
@@ -324,7 +340,9 @@ def run_ladder(
         ctx = mp.get_context("spawn")  # JAX is not fork-safe
         with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx) as ex:
             futs = {
-                n: ex.submit(_rung_worker, (scenario, n, t_end, str(out), n_chunks, checkpoint_s))
+                n: ex.submit(
+                    _rung_worker, (scenario, n, t_end, str(out), n_chunks, checkpoint_s, viscosity)
+                )
                 for n in todo
             }
             for n, f in futs.items():
@@ -637,13 +655,15 @@ def study(
     margin: float = 1.0,
     log=None,
     plot: bool = True,
+    viscosity: str | None = None,
 ) -> Study:
     """Run (or reuse) the ladder, analyse it, write ``convergence.csv`` and
-    ``convergence.png`` into ``out`` and return the :class:`Study`."""
+    ``convergence.png`` into ``out`` and return the :class:`Study`.  ``viscosity``: as in
+    :func:`run_rung`."""
     grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end)
     if not (isinstance(margin, (int, float)) and math.isfinite(margin) and margin >= 0):
         raise ConvergenceError(f"margin must be a number >= 0, got {margin!r}")
-    res = run_ladder(scenario, grids, ref, t_end, out, jobs=jobs, log=log)
+    res = run_ladder(scenario, grids, ref, t_end, out, jobs=jobs, log=log, viscosity=viscosity)
     st = analyse([res[n]["path"] for n in grids], res[ref]["path"], margin=margin)
     write_csv(st, Path(out) / "convergence.csv")
     if plot:
