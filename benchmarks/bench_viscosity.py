@@ -1,10 +1,10 @@
 """Time to solution of explicit vs implicit viscosity on the thesis's rotor.
 
-For each grid size the rotor (``refmap.scenarios.rotor``, cfl 0.3) is run from rest to
-``--t-end`` three times:
+For each grid size the rotor (``refmap.scenarios.rotor``, cfl 0.3; the scenario itself
+uses implicit viscosity since 2026-12-05) is run from rest to ``--t-end`` three times:
 
-* ``explicit``: the default forward-Euler step (its time step is bound by the viscous
-  limit h^2 rho / (4 nu) from 128^2 up);
+* ``explicit``: the forward-Euler step (the thesis's; its time step is bound by the
+  wave-damping limit at 128^2 and the viscous limit h^2 rho / (4 nu) above);
 * ``implicit``: ``Numerics.viscosity = "implicit"`` (backward-Euler viscosity, maps advected
   with the new velocity; the solid-wave limit binds);
 * ``reference``: explicit with the time step divided by ``--ref-factor`` (4 by default).
