@@ -261,9 +261,7 @@ def convergence_cmd(
     from refmap.convergence import ConvergenceError, check_study, format_table, study
 
     try:
-        check_study(scenario, grids, ref, t_end)
-        if viscosity is not None and viscosity not in ("explicit", "implicit"):
-            raise ConvergenceError(f"--viscosity must be 'explicit' or 'implicit', got {viscosity!r}")
+        check_study(scenario, grids, ref, t_end, viscosity)
     except ConvergenceError as e:
         _fail(str(e))
     out_dir = out if out is not None else Path("runs") / f"convergence_{scenario}"

@@ -86,8 +86,20 @@ def parse_grids(text) -> list[int]:
     return sorted(out)
 
 
-def check_study(scenario: str, grids, ref: int, t_end: float | None):
-    """Validate everything before any run; returns (grids, ref, t_end, {n: case})."""
+def _with_viscosity(case, viscosity: str | None):
+    """``case`` with its viscous step replaced (None: the scenario's own); a bad value gets
+    :class:`refmap.state.Numerics`' own error."""
+    if viscosity is None:
+        return case
+    try:
+        return case.replace(numerics=dataclasses.replace(case.numerics, viscosity=viscosity))
+    except ValueError as e:
+        raise ConvergenceError(str(e)) from None
+
+
+def check_study(scenario: str, grids, ref: int, t_end: float | None, viscosity: str | None = None):
+    """Validate everything before any run; returns (grids, ref, t_end, {n: case}).
+    ``viscosity``: as in :func:`run_rung`."""
     from refmap.case import CaseError
     from refmap.scenarios import SCENARIOS, get_case
 
@@ -106,7 +118,7 @@ def check_study(scenario: str, grids, ref: int, t_end: float | None):
     cases = {}
     for n in [*grids, ref]:
         try:
-            case = get_case(scenario, n)
+            case = _with_viscosity(get_case(scenario, n), viscosity)
             if t_end is not None:
                 case = case.replace(t_end=float(t_end))
             cases[n] = case.validate()
@@ -190,11 +202,7 @@ def run_rung(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     final = rung_path(out, scenario, n)
-    case = get_case(scenario, n).replace(t_end=float(t_end))
-    if viscosity is not None:
-        if viscosity not in ("explicit", "implicit"):
-            raise ConvergenceError(f"viscosity must be 'explicit' or 'implicit', got {viscosity!r}")
-        case = case.replace(numerics=dataclasses.replace(case.numerics, viscosity=viscosity))
+    case = _with_viscosity(get_case(scenario, n), viscosity).replace(t_end=float(t_end))
     viscosity = case.numerics.viscosity
     if final.exists():
         h = load_rung(final)["header"]
@@ -310,7 +318,7 @@ def run_ladder(
     long reference starts at once); each process runs one rung on one core.  ``viscosity``:
     as in :func:`run_rung`, for every rung.
     """
-    grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end)
+    grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end, viscosity)
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ConvergenceError(f"jobs must be an integer >= 1, got {jobs!r}")
     log = log or (lambda msg: print(msg, flush=True))
@@ -660,7 +668,7 @@ def study(
     """Run (or reuse) the ladder, analyse it, write ``convergence.csv`` and
     ``convergence.png`` into ``out`` and return the :class:`Study`.  ``viscosity``: as in
     :func:`run_rung`."""
-    grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end)
+    grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end, viscosity)
     if not (isinstance(margin, (int, float)) and math.isfinite(margin) and margin >= 0):
         raise ConvergenceError(f"margin must be a number >= 0, got {margin!r}")
     res = run_ladder(scenario, grids, ref, t_end, out, jobs=jobs, log=log, viscosity=viscosity)
