@@ -63,6 +63,7 @@ import numpy as np
 
 import refmap  # noqa: F401  (float64)
 from refmap.anchors import RegionAnchor
+from refmap.blend import bending_factor
 from refmap.boundary import Boundary, BoundaryConditions, Segment
 from refmap.forces import (
     anchor_weight,
@@ -202,10 +203,39 @@ DT_FACTOR = 0.25  # dt = DT_FACTOR h / c_L (stability limit 0.35 with solid_visc
 
 
 # --------------------------------------------------------------------------- CSM
+def csm_tag(
+    case: str,
+    nt: int,
+    blend_kernel: str = "erf",
+    blur_width: float = 2.0,
+    held_density: bool = False,
+    compression: str = "centred",
+) -> str:
+    """File stem of a CSM run: the thesis's blend (erf, 2 h) and compression carry no
+    suffix, so the runs made before these became options keep their names."""
+    tag = f"{case}_nt{nt}"
+    if (blend_kernel, blur_width) != ("erf", 2.0):
+        tag += f"_{blend_kernel}{blur_width:g}"
+    if compression != "centred":
+        tag += f"_{compression}"
+    return tag + ("_held" if held_density else "")
+
+
 def make_csm(
-    case: str, nt: int, rho_f: float = 100.0, gamma_factor: float = 3.0, damp_all: bool = False
+    case: str,
+    nt: int,
+    rho_f: float = 100.0,
+    gamma_factor: float = 3.0,
+    damp_all: bool = False,
+    blend_kernel: str = "erf",
+    blur_width: float = 2.0,
+    held_density: bool = False,
+    compression: str = "centred",
 ):
-    """Model, params and settings of CSM1/CSM2 with ``nt`` cells across the flag."""
+    """Model, params and settings of CSM1/CSM2 with ``nt`` cells across the flag, blended
+    with ``blend_kernel`` of width ``blur_width`` cells (:mod:`refmap.blend`);
+    ``held_density`` extends the fluid density into the clamped cylinder
+    (:class:`HeldDensityModel`); ``compression`` is the fluid's (``Numerics.compression``)."""
     mu = MU_S[case]
     h = THICK / nt
     c_l = longitudinal_speed(mu)
@@ -231,14 +261,17 @@ def make_csm(
     # fluid resisted the flag's motion, overdamping it 2-3x.)
     damp = SolidDamping(
         eta=solid_viscosity(c_l, h),
-        gamma=gamma_factor * omega * math.sqrt(1 + 24 / nt**2),
+        gamma=gamma_factor * omega * math.sqrt(bending_factor(blend_kernel, blur_width, nt)),
         damp_all=damp_all,
         gravity=(0.0, -GRAV),
         zeta=zeta,
     )
     solid = Solid(shape=BODY, law=svk(mu), anchor=RegionAnchor(CYL), name="flag")
-    numerics = Numerics(dt_fixed=dt)
-    model = Model(grid, (solid,), Boundary(), numerics, body_forces=(damp,))
+    numerics = Numerics(
+        dt_fixed=dt, blend=blend_kernel, blur_width=blur_width, compression=compression
+    )
+    cls = HeldDensityModel if held_density else Model
+    model = cls(grid, (solid,), Boundary(), numerics, body_forces=(damp,))
     params = Params(fluid=fluid, laws=(solid.law,), gravity=(0.0, 0.0))
     info = dict(
         case=case,
@@ -255,6 +288,11 @@ def make_csm(
         eta_s=damp.eta,
         gamma=damp.gamma,
         damp_all=damp_all,
+        blend=blend_kernel,
+        blur_width=blur_width,
+        bending_factor=bending_factor(blend_kernel, blur_width, nt),
+        held_density=held_density,
+        compression=compression,
         omega1=omega,
         domain=[ax, bx, ay, by],
     )
@@ -285,16 +323,26 @@ def run_csm(
     rho_f: float = 100.0,
     gamma_factor: float = 3.0,
     damp_all: bool = False,
+    blend_kernel: str = "erf",
+    blur_width: float = 2.0,
+    held_density: bool = False,
+    compression: str = "centred",
 ):
     """Run CSM1/2 until the tip is at rest; returns the result dict (also written to out)."""
+    variant = dict(
+        blend_kernel=blend_kernel,
+        blur_width=blur_width,
+        held_density=held_density,
+        compression=compression,
+    )
     model, params, info = make_csm(
-        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all
+        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all, **variant
     )
     if t_max is None:
         t_max = 12.0 / info["omega1"]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    tag = f"{case}_nt{nt}"
+    tag = csm_tag(case, nt, **variant)
     state = model.initial_state(params)
     advance = jax.jit(model.advance)
     solid_mask = lambda s: s.phi[0] < 0  # noqa: E731
@@ -352,7 +400,15 @@ def run_csm(
     f.close()
     save_state(out / f"{tag}_state.npz", state)
     return summarize_csm(
-        case, nt, out, ok=ok, rho_f=rho_f, tol=tol, gamma_factor=gamma_factor, damp_all=damp_all
+        case,
+        nt,
+        out,
+        ok=ok,
+        rho_f=rho_f,
+        tol=tol,
+        gamma_factor=gamma_factor,
+        damp_all=damp_all,
+        **variant,
     )
 
 
@@ -376,12 +432,24 @@ def summarize_csm(
     tol: float | None = None,
     gamma_factor: float = 3.0,
     damp_all: bool = False,
+    blend_kernel: str = "erf",
+    blur_width: float = 2.0,
+    held_density: bool = False,
+    compression: str = "centred",
 ):
     """Result dict of a CSM run from its CSV history (the last line is the answer; the
     spread of u_y over the last 1 / omega1 measures how far from rest it still is)."""
-    _, _, info = make_csm(case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all)
+    variant = dict(
+        blend_kernel=blend_kernel,
+        blur_width=blur_width,
+        held_density=held_density,
+        compression=compression,
+    )
+    _, _, info = make_csm(
+        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all, **variant
+    )
     out = Path(out)
-    tag = f"{case}_nt{nt}"
+    tag = csm_tag(case, nt, **variant)
     with open(out / f"{tag}.csv") as f:
         rows = [[float(x) for x in r] for r in list(csv.reader(f))[1:]]
     if tol is not None:  # cut the history where the rest criterion with this tol first holds
@@ -908,6 +976,10 @@ def table(out=DEFAULT_OUT):
             res += ", incompressible"
         if r.get("mirror"):
             res += ", body mirrored"
+        if r["case"].startswith("csm"):
+            res += f", {r.get('blend', 'erf')} {r.get('blur_width', 2.0):g}"
+            if r.get("compression", "centred") != "centred":
+                res += f", {r['compression']} compression"
         for q in qs:
             lines.append(
                 f"| {r['case'].upper()} | {res} | {q} | {r[q]:.5g} | {r['ref_' + q]:.6g} | "
@@ -1031,13 +1103,24 @@ def main(argv=None):
         "--gamma-factor", type=float, default=3.0, help="CSM: damping rate / omega1_blur"
     )
     ap.add_argument("--damp-all", action="store_true", help="CSM: damp the fluid's mass too")
+    ap.add_argument(
+        "--blend", choices=["erf", "sine"], default="erf", help="CSM: blend kernel (Numerics.blend)"
+    )
+    ap.add_argument(
+        "--blur-width", type=float, default=2.0, help="CSM: kernel width in cells (Numerics.blur_width)"
+    )
+    ap.add_argument(
+        "--held-density",
+        action="store_true",
+        help="CSM: extend the fluid density into the clamped cylinder (HeldDensityModel)",
+    )
     ap.add_argument("--gamma", type=float, default=None, help="FSI1: flag mass damping (1/s)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     ap.add_argument(
         "--compression",
         choices=["centred", "corner"],
         default="centred",
-        help="channel runs: fluid compression (Numerics.compression)",
+        help="fluid compression (Numerics.compression), CSM and channel runs",
     )
     ap.add_argument(
         "--fluid",
@@ -1063,6 +1146,10 @@ def main(argv=None):
             rho_f=a.rho_f,
             gamma_factor=a.gamma_factor,
             damp_all=a.damp_all,
+            blend_kernel=a.blend,
+            blur_width=a.blur_width,
+            held_density=a.held_density,
+            compression=a.compression,
         )
     elif a.case in ("cfd1", "cfd2") and a.fluid == "incompressible":
         r = run_cfd(a.case, a.ny, t_end=a.t_end or 8.0, avg=a.avg, out=a.out, mirror=a.mirror)
