@@ -33,6 +33,28 @@ def test_material_point_is_exact_for_an_affine_map():
     assert float(jnp.max(res)) < 1e-13
 
 
+def test_material_point_found_after_a_move_longer_than_the_band():
+    """A disc of radius 0.1 translated by 0.3 (15 cells): the map is affine (xi = x - d)
+    inside the disc and its 3-cell band, and holds stale values (its initial identity, as
+    a band leaves behind) elsewhere.  Started at X0 the Newton iteration lands where the
+    stale map equals X0, i.e. where the point was, and the residual there is zero; that
+    is the failure that lost the Turek--Hron point A once the flag tip had fallen 8 cells.
+    Started from the nearest node inside ``phi < 2h`` it finds the moved point exactly."""
+    g = Grid(50, 40, 0.0, 1.0, 0.0, 0.8)
+    X, Y = g.mesh("node")
+    d = np.array([0.3, -0.12])
+    c = np.array([0.62, 0.3])  # centre now; the material came from c - d
+    phi = np.hypot(X - c[0], Y - c[1]) - 0.1
+    band = phi < 3 * g.h
+    xi = jnp.asarray(np.stack([np.where(band, X - d[0], X), np.where(band, Y - d[1], Y)]))
+    X0 = np.array([[0.32 + 0.05, 0.32 - 0.1], [0.42, 0.42 + 0.02]])  # on and in the disc
+    x_old, _ = material_point(xi, g, X0)
+    assert np.all(np.abs(np.asarray(x_old) - X0) < 1e-12)  # stuck where it was
+    x, res = material_point(xi, g, X0, phi=jnp.asarray(phi))
+    np.testing.assert_allclose(np.asarray(x), X0 + d[:, None], atol=1e-13)
+    assert float(jnp.max(res)) < 1e-13
+
+
 def test_material_point_of_a_smooth_map_is_second_order():
     """A smooth non-affine displacement: the bilinear error halves twice per refinement."""
     errs = []

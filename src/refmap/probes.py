@@ -46,16 +46,42 @@ def bilinear(f, grid: Grid, x, y):
     return val, ddx, ddy
 
 
-def material_point(xi, grid: Grid, X0, x_guess=None, iters: int = 12):
+def nearest_node(xi, grid: Grid, X0, phi, reach: float = 2.0):
+    """Position of the node whose map value is nearest to X0, among the nodes with
+    ``phi < reach h`` (the solid and the part of its band where the extrapolated map is
+    reliable).  A starting point for :func:`material_point` that does not depend on how
+    far the material has moved: elsewhere the map holds whatever the band left behind.
+
+    ``X0``: (2,) or (2, P); returns the same shape."""
+    X0 = jnp.asarray(X0, dtype=xi.dtype)
+    pts = X0.reshape(2, -1)
+    X, Y = grid.mesh()
+    ok = (phi < reach * grid.h).ravel()
+    d2 = (xi[0].ravel()[:, None] - pts[0]) ** 2 + (xi[1].ravel()[:, None] - pts[1]) ** 2
+    k = jnp.argmin(jnp.where(ok[:, None], d2, jnp.inf), axis=0)
+    x = jnp.stack([jnp.asarray(X).ravel()[k], jnp.asarray(Y).ravel()[k]])
+    return x.reshape(X0.shape)
+
+
+def material_point(xi, grid: Grid, X0, x_guess=None, iters: int = 12, phi=None,
+                   reach: float = 2.0):
     """Current position x of the material point(s) X0, the root of ``xi(x) = X0``.
 
     ``xi``: (2, nx, ny) reference map of one solid; ``X0``: (2,) or (2, P) reference
-    coordinates; ``x_guess``: starting point (default X0, i.e. small displacements).
+    coordinates; ``x_guess``: starting point.  Without it the iteration starts from X0
+    (small displacements), or, when the solid's level set ``phi`` is given, from
+    :func:`nearest_node` (any displacement: a start at X0 fails once the material has moved
+    further than the band, where the map is not kept up to date).
     Newton's iteration on the bilinear interpolant; returns ``(x, residual)`` with the
     residual ``|xi(x) - X0|`` at the returned point (a convergence check for the caller).
     """
     X0 = jnp.asarray(X0, dtype=xi.dtype)
-    x = X0 if x_guess is None else jnp.asarray(x_guess, dtype=xi.dtype)
+    if x_guess is not None:
+        x = jnp.asarray(x_guess, dtype=xi.dtype)
+    elif phi is not None:
+        x = nearest_node(xi, grid, X0, phi, reach)
+    else:
+        x = X0
     for _ in range(iters):
         val, gx, gy = bilinear(xi, grid, x[0], x[1])
         r = val - X0
@@ -71,4 +97,4 @@ def material_point(xi, grid: Grid, X0, x_guess=None, iters: int = 12):
     return x, res
 
 
-__all__ = ["bilinear", "material_point"]
+__all__ = ["bilinear", "material_point", "nearest_node"]
