@@ -49,6 +49,7 @@ from refmap.operators import (
     divergence_centered,
     grad_corner,
     laplacian,
+    laplacian_lowmem,
     node_average,
 )
 from refmap.projection import Projection, resolve_preconditioner
@@ -991,7 +992,8 @@ class Model:
         divs = div_node(*d["s"], *sp)
         if n.band_force == "solid" and self.n_solids:
             divs = divs + self.band_force_to_solid(state, d)
-        force = divs if implicit else divs + fl.extra_viscosity * laplacian(vp, *sp, g=2)
+        lap = laplacian if n.fixed_smooth_sweeps is None else laplacian_lowmem
+        force = divs if implicit else divs + fl.extra_viscosity * lap(vp, *sp, g=2)
         ctx = dict(state=state, params=params, derived=d, model=self)
         for term in self.body_forces:
             force = force + term(ctx)
