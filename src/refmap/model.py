@@ -823,7 +823,11 @@ class Model:
         rho0 = rho0.reshape((-1,) + (1,) * nd)
         rho_s = jnp.where(valid, rho0 * det, rho0)
 
-        s_mix = [wf_c * sf + jnp.sum(ws_c * sig[..., a, b], axis=0)
+        # the components by one split (its transpose is one concatenation; indexing each
+        # component pads its cotangent to the whole tensor, three such buffers at the peak
+        # of a step's backward pass)
+        parts = jnp.split(sig.reshape(sig.shape[:-2] + (nd * nd,)), nd * nd, axis=-1)
+        s_mix = [wf_c * sf + jnp.sum(ws_c * parts[a * nd + b][..., 0], axis=0)
                  for sf, (a, b) in zip(s_f, SYM_PAIRS[nd], strict=True)]
         rho = wf_n * rho_f + jnp.sum(ws_n * node_average(rho_s, nd), axis=0)
         return dict(
