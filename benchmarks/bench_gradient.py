@@ -33,6 +33,7 @@ Targets (issue 13): gradient time <= 10x forward, memory <= 4x forward at 10000 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
 
@@ -93,8 +94,17 @@ def _time(fn, args, reps):
     return best
 
 
-def bench(n, steps, time_steps, reps, strategies):
-    model, state, params = rd.from_case(get_case("circle", max(n, 16)))
+def circle(n, band_sweeps=None):
+    """The circle case at ``n``^2, with ``Numerics.band_sweeps`` replaced if given."""
+    case = get_case("circle", max(n, 16))
+    if band_sweeps is not None:
+        case = dataclasses.replace(case, numerics=dataclasses.replace(case.numerics,
+                                                                      band_sweeps=band_sweeps))
+    return case
+
+
+def bench(n, steps, time_steps, reps, strategies, band_sweeps=None):
+    model, state, params = rd.from_case(circle(n, band_sweeps))
     dt = rd.stable_dt(model, state, params)
 
     def loss(s):
@@ -150,6 +160,8 @@ def main(argv=None):
     ap.add_argument("--strategies", nargs="+", default=None,
                     help="checkpoint strategies among sqrt nestedK binomialS step none "
                          "(default sqrt nested3 nested4 binomial13 step none)")
+    ap.add_argument("--band-sweeps", choices=("auto", "band", "grid"), default=None,
+                    help="Numerics.band_sweeps of the circle (default: the scenario's, auto)")
     a = ap.parse_args(argv)
     sizes = a.sizes or ([32] if a.quick else [64, 128])
     steps = a.steps or ([20, 100] if a.quick else [100, 1000, 10000])
@@ -160,7 +172,8 @@ def main(argv=None):
             _strategy(s)
         except ValueError as e:
             ap.error(str(e))
-    print(f"backend {jax.default_backend()}, circle scenario, CPU time best of {a.reps}; "
+    print(f"backend {jax.default_backend()}, circle scenario (band_sweeps "
+          f"{a.band_sweeps or 'default'}), CPU time best of {a.reps}; "
           f"memory from memory_analysis() (temporaries + arguments + outputs)")
     print(f"{'n':>5} {'steps':>6} {'ckpt':>8} {'fwd [s]':>9} {'grad [s]':>9} {'ratio':>6} "
           f"{'fwd MiB':>9} {'grad MiB':>10} {'mem x':>7} {'states':>7} {'st. MiB':>9} "
@@ -168,7 +181,7 @@ def main(argv=None):
     rows = []
     for n in sizes:
         for k in steps:
-            rows += bench(n, k, time_steps, a.reps, strategies)
+            rows += bench(n, k, time_steps, a.reps, strategies, a.band_sweeps)
     return rows
 
 

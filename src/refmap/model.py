@@ -43,11 +43,13 @@ from refmap.operators import (
     SYM_COMPONENTS,
     SYM_PAIRS,
     advect,
+    advect_lowmem,
     corner_average,
     div_node,
     divergence_centered,
     grad_corner,
     laplacian,
+    laplacian_lowmem,
     node_average,
 )
 from refmap.projection import Projection, resolve_preconditioner
@@ -821,7 +823,11 @@ class Model:
         rho0 = rho0.reshape((-1,) + (1,) * nd)
         rho_s = jnp.where(valid, rho0 * det, rho0)
 
-        s_mix = [wf_c * sf + jnp.sum(ws_c * sig[..., a, b], axis=0)
+        # the components by one split (its transpose is one concatenation; indexing each
+        # component pads its cotangent to the whole tensor, three such buffers at the peak
+        # of a step's backward pass)
+        parts = jnp.split(sig.reshape(sig.shape[:-2] + (nd * nd,)), nd * nd, axis=-1)
+        s_mix = [wf_c * sf + jnp.sum(ws_c * parts[a * nd + b][..., 0], axis=0)
                  for sf, (a, b) in zip(s_f, SYM_PAIRS[nd], strict=True)]
         rho = wf_n * rho_f + jnp.sum(ws_n * node_average(rho_s, nd), axis=0)
         return dict(
@@ -878,6 +884,14 @@ class Model:
         out = [p.reshape(sh) for p, sh in zip(parts, shapes, strict=True)]
         return out[:len(s_f)], out[-3], out[-2], out[-1]
 
+    @property
+    def _advect(self):
+        """The ENO advection of the step: :func:`refmap.operators.advect`, or with fixed
+        smoothing sweeps (the reverse-differentiable runs, :mod:`refmap.differentiable`)
+        :func:`refmap.operators.advect_lowmem`, the same values with a hand-written reverse
+        mode that holds less memory in a step's backward pass."""
+        return advect if self.numerics.fixed_smooth_sweeps is None else advect_lowmem
+
     def _advect_maps(self, xi, xip, vel, phi, dt):
         """Step 1: the maps advected (ENO) where ``phi < (band - 3) h``, kept elsewhere.
         With solids on tiles (:attr:`solid_tiles`) on each solid's node tiles that hold
@@ -888,7 +902,7 @@ class Model:
         limit = (self.numerics.band - 3.0) * self.h
 
         def dense(_):
-            return jnp.where((phi < limit)[:, None], xi + dt * advect(xip, vel, *self.spacing), xi)
+            return jnp.where((phi < limit)[:, None], xi + dt * self._advect(xip, vel, *self.spacing), xi)
 
         if self.solid_tiles is None:
             return dense(None)
@@ -900,7 +914,7 @@ class Model:
 
         def tiled(cap):
             return lambda _: solid_tiles.advect_maps(xi, xip, vel, phi, limit, flags, cap, tile,
-                                                     self.spacing, dt)
+                                                     self.spacing, dt, advect=self._advect)
 
         return lax.switch(level, [tiled(c) for c in caps] + [dense], None)
 
@@ -982,11 +996,12 @@ class Model:
         divs = div_node(*d["s"], *sp)
         if n.band_force == "solid" and self.n_solids:
             divs = divs + self.band_force_to_solid(state, d)
-        force = divs if implicit else divs + fl.extra_viscosity * laplacian(vp, *sp, g=2)
+        lap = laplacian if n.fixed_smooth_sweeps is None else laplacian_lowmem
+        force = divs if implicit else divs + fl.extra_viscosity * lap(vp, *sp, g=2)
         ctx = dict(state=state, params=params, derived=d, model=self)
         for term in self.body_forces:
             force = force + term(ctx)
-        acc = advect(vp, v, *sp) + force / d["rho"][None] + self._vec(params.gravity)
+        acc = self._advect(vp, v, *sp) + force / d["rho"][None] + self._vec(params.gravity)
         # rho_f is the fluid's density; inside a solid there is no fluid to compress, so the
         # compression term is weighted by the fluid fraction and rho_f is only carried
         # there.  (Unweighted, a steady converging solid velocity -- at the edge of the
@@ -1044,7 +1059,7 @@ class Model:
         else:
             compression = d["wf_n"] * divergence_centered(*vqp, *sp, g=2)
         if self.projection is None:
-            drho = advect(rp, vq, *sp) - rho_f * compression
+            drho = self._advect(rp, vq, *sp) - rho_f * compression
             rho_new = rho_f + dt * drho
 
         if self.n_solids == 0:

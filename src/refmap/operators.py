@@ -35,6 +35,9 @@ triangle order, ``SYM_COMPONENTS[d]``: ``(xx, xy, yy)`` in 2D and
 
 from __future__ import annotations
 
+import functools
+
+import jax
 import jax.numpy as jnp
 
 #: names of the independent components of a symmetric tensor, in the order used everywhere
@@ -211,6 +214,99 @@ def advect(fp, vel, *h):
     return -acc
 
 
+def _sum_to(x, shape):
+    """``x`` summed over the axes that broadcasting ``shape`` to ``x.shape`` added or
+    stretched (the transpose of that broadcast)."""
+    lead = x.ndim - len(shape)
+    if lead:
+        x = jnp.sum(x, axis=tuple(range(lead)))
+    axes = tuple(i for i, (a, b) in enumerate(zip(x.shape, shape, strict=True)) if a != b)
+    return jnp.sum(x, axis=axes, keepdims=True) if axes else x
+
+
+def _eno_parts(fp, vel, axis, h, d):
+    """The masks that pick the stencils of :func:`eno_derivatives` along ``axis`` (the same
+    arithmetic as :func:`_eno2`): ``(back_one, fwd_one, pos)``, the backward and forward
+    differences one-sided, and the velocity positive (the backward one used)."""
+    fm2, fm1, f0, f1, f2 = (_shift(fp, axis, k, 2, d) for k in (-2, -1, 0, 1, 2))
+
+    def one_sided(p0, p1, p2, p3):
+        scale = jnp.abs(p0) + jnp.abs(p1) + jnp.abs(p2) + jnp.abs(p3)
+        return jnp.abs(p0 - 2 * p1 + p2) > jnp.abs(p1 - 2 * p2 + p3) + _ENO_TIE * scale
+
+    return one_sided(f1, f0, fm1, fm2), one_sided(fm1, f0, f1, f2), vel[axis] > 0
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def _advect_lowmem(fp, vel, h):
+    return advect(fp, vel, *h)
+
+
+def _advect_lowmem_fwd(fp, vel, h):
+    return advect(fp, vel, *h), (fp, vel)
+
+
+def _advect_lowmem_bwd(h, res, ct):
+    # out = -sum_a vel_a D_a, D_a = where(pos, back, fwd) (eno_derivatives): linear in fp
+    # for fixed stencil choices (the masks, recomputed here from fp and vel), so the
+    # cotangent of fp is the transposed stencil applied to the masked cotangent.  It is
+    # gathered from shifted slices of one zero-padded cotangent and one padded int8 code
+    # of the stencil per axis, in one expression (JAX's own transpose pads each of the 10
+    # shifted slices to the padded shape separately, and XLA kept them all live at the
+    # peak of a step's backward)
+    fp, vel = res
+    d = len(h)
+    grads = eno_derivatives(fp, vel, *h)
+    inner = fp.shape[:-d] + tuple(n - 4 for n in fp.shape[-d:])
+    g_fp = None
+    g_vel = []
+    for a in range(d):
+        g_vel.append(_sum_to(-ct * grads[a], vel[a].shape))
+        back_one, fwd_one, pos = _eno_parts(fp, vel, a, h, d)
+        # 0: backward one-sided, 1: backward centred, 2: forward one-sided, 3: forward centred
+        code = jnp.where(pos, jnp.where(back_one, 0, 1), jnp.where(fwd_one, 2, 3)).astype(jnp.int8)
+        gd = -ct * vel[a] / (2 * h[a])
+        pads = [(0, 0)] * (fp.ndim - d) + [(4, 4) if b == a else (2, 2) for b in range(d)]
+        n = fp.shape[a - d]
+
+        def at(x, k, a=a, n=n):  # the slice that lines up shift k's coefficient with fp
+            idx = [slice(None)] * fp.ndim
+            idx[a - d] = slice(2 - k, 2 - k + n)
+            return x[tuple(idx)]
+
+        if gd.shape == inner:
+            gp = jnp.pad(gd, pads)
+            cp = jnp.pad(code, pads, constant_values=-1)
+
+            def part(k, c, gp=gp, cp=cp, at=at):  # the cotangent at shift k of stencil c
+                return jnp.where(at(cp, k) == c, at(gp, k), 0.0)
+        else:  # vel broadcasts over more axes than fp's: each stencil's share summed apart
+            split = [jnp.pad(_sum_to(jnp.where(code == c, gd, 0.0), inner), pads) for c in range(4)]
+
+            def part(k, c, split=split, at=at):
+                return at(split[c], k)
+
+        A = {k: part(k, 0) for k in (-2, -1, 0)}
+        B = {k: part(k, 1) for k in (-1, 1)}
+        C = {k: part(k, 2) for k in (0, 1, 2)}
+        E = {k: part(k, 3) for k in (-1, 1)}
+        term = (A[-2] + (-4 * A[-1] - B[-1] - E[-1]) + (3 * A[0] - 3 * C[0])
+                + (B[1] + 4 * C[1] + E[1]) - C[2])
+        g_fp = term if g_fp is None else g_fp + term
+    return g_fp, jnp.stack(g_vel)
+
+
+_advect_lowmem.defvjp(_advect_lowmem_fwd, _advect_lowmem_bwd)
+
+
+def advect_lowmem(fp, vel, *h):
+    """:func:`advect` (the same values) with a hand-written reverse-mode derivative that
+    keeps only ``fp`` and ``vel`` for the backward pass and forms the transposed ENO stencil
+    in one expression (less memory in the backward pass of a step; no forward mode)."""
+    _ndim_of(h, "advect_lowmem")
+    return _advect_lowmem(fp, vel, tuple(float(x) for x in h))
+
+
 def laplacian(fp, *h, g=1):
     """(2d+1)-point Laplacian of a padded node field (g ghost layers) -> interior shape.
 
@@ -223,6 +319,45 @@ def laplacian(fp, *h, g=1):
         term = (_shift(fp, a, 1, g, d) - 2 * c + _shift(fp, a, -1, g, d)) / h[a] ** 2
         acc = term if acc is None else acc + term
     return acc
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(1, 2))
+def _laplacian_lowmem(fp, h, g):
+    return laplacian(fp, *h, g=g)
+
+
+def _laplacian_lowmem_fwd(fp, h, g):
+    return laplacian(fp, *h, g=g), None
+
+
+def _laplacian_lowmem_bwd(h, g, _, ct):
+    # the Laplacian is linear and symmetric: its transpose is the same stencil read from
+    # the cotangent padded with g + 1 zeros, one expression (JAX's transpose pads each of
+    # the 2d + 1 shifted slices to the padded shape apart)
+    d = len(h)
+    gp = jnp.pad(ct, [(0, 0)] * (ct.ndim - d) + [(g + 1, g + 1)] * d)
+    n = [m + 2 * g for m in ct.shape[-d:]]
+
+    def at(a, k):  # shift k along axis a (0: the centre)
+        return gp[(Ellipsis,) + tuple(slice(1 + (k if b == a else 0), 1 + (k if b == a else 0) + n[b])
+                                      for b in range(d))]
+
+    c = at(0, 0)
+    acc = None
+    for a in range(d):
+        term = (at(a, -1) - 2 * c + at(a, 1)) / h[a] ** 2
+        acc = term if acc is None else acc + term
+    return (acc,)
+
+
+_laplacian_lowmem.defvjp(_laplacian_lowmem_fwd, _laplacian_lowmem_bwd)
+
+
+def laplacian_lowmem(fp, *h, g=1):
+    """:func:`laplacian` (the same values) with a hand-written reverse mode that forms its
+    transpose in one expression (less memory in a step's backward pass; no forward mode)."""
+    _ndim_of(h, "laplacian_lowmem")
+    return _laplacian_lowmem(fp, tuple(float(x) for x in h), int(g))
 
 
 def divergence_centered(*args, g=1):

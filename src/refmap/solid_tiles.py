@@ -201,7 +201,7 @@ def stress_contributions(phit, xit, laws, stress_fn, h, spacing, numerics):
     return corner, (wn * node_average(drho, nd))[:, :, None]
 
 
-def advect_maps(xi, xip, vel, phi, limit, flags, capacity: int, tile, spacing, dt):
+def advect_maps(xi, xip, vel, phi, limit, flags, capacity: int, tile, spacing, dt, advect=None):
     """Each solid's reference maps advected on its listed node tiles: ``xi + dt (-(v . grad)
     xi)`` (ENO, :func:`refmap.operators.advect`) where ``phi < limit``, ``xi`` elsewhere,
     the same arithmetic node for node as on the whole grid.
@@ -213,8 +213,11 @@ def advect_maps(xi, xip, vel, phi, limit, flags, capacity: int, tile, spacing, d
     solid (the caller checks).  A tile's window starts at ``min(p T, n - T)`` per axis: the
     last tile of an axis that ``T`` does not divide is moved back to end on the last node,
     overlapping its neighbour, whose nodes it computes with the same arithmetic, so the
-    writes agree.  Every axis must hold at least ``T`` nodes."""
-    from refmap.operators import advect
+    writes agree.  Every axis must hold at least ``T`` nodes.  ``advect``: the advection
+    operator (default :func:`refmap.operators.advect`; :func:`refmap.operators.advect_lowmem`
+    gives the same values)."""
+    if advect is None:
+        from refmap.operators import advect
 
     nd = len(tile)
     shape = xi.shape[-nd:]
