@@ -94,24 +94,32 @@ class RolloutResult(NamedTuple):
 
 
 # ----------------------------------------------------------------------------- the model
-def differentiable_model(model, sweeps: int | None = None):
+def differentiable_model(model, sweeps: int | None = None, hand_transposes: bool = True):
     """``model`` with a fixed number of smoothing sweeps (no ``while_loop`` in the step).
 
     ``sweeps`` defaults to ``Numerics.fixed_smooth_sweeps`` if set, else
     ``Numerics.smooth_max_sweeps`` (the adaptive rule seldom stops before that; see
-    :func:`refmap.extrapolation.smooth_extrapolated`).  Returns ``model`` itself when it
-    already smooths with that fixed count, otherwise a shallow copy with replaced numerics
-    (the traced parts set by :func:`with_traced` are kept).
+    :func:`refmap.extrapolation.smooth_extrapolated`).  ``hand_transposes`` (default):
+    the step's advection and extra viscosity use their hand-written reverse modes
+    (:attr:`refmap.model.Model.hand_transposes`: less memory in reverse mode, same values);
+    those have no forward mode, so pass ``False`` for ``jax.jvp`` or ``jax.jacfwd``.
+    Returns ``model`` itself when it already has both settings, otherwise a shallow copy
+    with replaced numerics (the traced parts set by :func:`with_traced` are kept).
     """
+    if not isinstance(hand_transposes, bool):
+        raise ValueError(
+            f"differentiable_model: hand_transposes must be True or False, got {hand_transposes!r}"
+        )
     n = model.numerics
     if sweeps is None:
         sweeps = n.fixed_smooth_sweeps if n.fixed_smooth_sweeps is not None else n.smooth_max_sweeps
     if not isinstance(sweeps, int) or isinstance(sweeps, bool) or sweeps < 0:
         raise ValueError(f"differentiable_model: sweeps must be an integer >= 0, got {sweeps!r}")
-    if n.fixed_smooth_sweeps == sweeps:
+    if n.fixed_smooth_sweeps == sweeps and model.hand_transposes == hand_transposes:
         return model
     out = copy.copy(model)
     out.numerics = dataclasses.replace(n, fixed_smooth_sweeps=sweeps)
+    out.hand_transposes = hand_transposes
     return out
 
 
@@ -357,6 +365,7 @@ def rollout(
     sweeps: int | None = None,
     levels: int = 3,
     snapshots: int = 13,
+    hand_transposes: bool = True,
 ) -> RolloutResult:
     """``n_steps`` steps of ``model`` of fixed size ``dt``, reverse-differentiable.
 
@@ -389,6 +398,10 @@ def rollout(
             Walther's revolve, :func:`binomial_schedule`) in a custom VJP; the backward pass
             holds ``snapshots + 1`` states and one step's backward, and re-runs
             :func:`binomial_cost` steps (e.g. 10 000 steps, 13 snapshots: 4.8 runs).
+        hand_transposes: the step's advection and extra viscosity with hand-written
+            reverse modes (default: less memory in ``jax.grad``; see
+            :func:`differentiable_model`).  Pass ``False`` for forward mode (``jax.jvp``,
+            ``jax.jacfwd``), with any ``checkpoint`` but ``"binomial"`` (a custom VJP too).
 
     Returns:
         :class:`RolloutResult` ``(state, loss, observations)``.
@@ -407,7 +420,7 @@ def rollout(
     if checkpoint == "binomial" and (isinstance(snapshots, bool) or not isinstance(snapshots, int)
                                      or snapshots < 1):
         raise ValueError(f"rollout: snapshots must be an integer >= 1, got {snapshots!r}")
-    model = differentiable_model(model, sweeps)
+    model = differentiable_model(model, sweeps, hand_transposes)
     _check_differentiable(model)
     dt = jnp.asarray(dt, dtype=jnp.float64)
 

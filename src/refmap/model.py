@@ -230,6 +230,12 @@ def _det_adjugate(dxi):
 class Model:
     """Static description of a case and the pure step function built from it."""
 
+    #: the step's ENO advection and extra-viscosity Laplacian with hand-written reverse
+    #: modes (:func:`refmap.operators.advect_lowmem`, ``laplacian_lowmem``: the same values,
+    #: less memory in a step's backward pass, but no forward mode).  Set on the copies
+    #: that :func:`refmap.differentiable.differentiable_model` makes for reverse mode.
+    hand_transposes: bool = False
+
     def __init__(
         self,
         grid: Grid,
@@ -886,11 +892,10 @@ class Model:
 
     @property
     def _advect(self):
-        """The ENO advection of the step: :func:`refmap.operators.advect`, or with fixed
-        smoothing sweeps (the reverse-differentiable runs, :mod:`refmap.differentiable`)
-        :func:`refmap.operators.advect_lowmem`, the same values with a hand-written reverse
-        mode that holds less memory in a step's backward pass."""
-        return advect if self.numerics.fixed_smooth_sweeps is None else advect_lowmem
+        """The ENO advection of the step: :func:`refmap.operators.advect`, or with
+        :attr:`hand_transposes` :func:`refmap.operators.advect_lowmem`, the same values with
+        a hand-written reverse mode that holds less memory in a step's backward pass."""
+        return advect_lowmem if self.hand_transposes else advect
 
     def _advect_maps(self, xi, xip, vel, phi, dt):
         """Step 1: the maps advected (ENO) where ``phi < (band - 3) h``, kept elsewhere.
@@ -996,7 +1001,7 @@ class Model:
         divs = div_node(*d["s"], *sp)
         if n.band_force == "solid" and self.n_solids:
             divs = divs + self.band_force_to_solid(state, d)
-        lap = laplacian if n.fixed_smooth_sweeps is None else laplacian_lowmem
+        lap = laplacian_lowmem if self.hand_transposes else laplacian
         force = divs if implicit else divs + fl.extra_viscosity * lap(vp, *sp, g=2)
         ctx = dict(state=state, params=params, derived=d, model=self)
         for term in self.body_forces:
