@@ -210,9 +210,11 @@ def csm_tag(
     blur_width: float = 2.0,
     held_density: bool = False,
     compression: str = "centred",
+    **_fluid_and_damping,
 ) -> str:
     """File stem of a CSM run: the thesis's blend (erf, 2 h) and compression carry no
-    suffix, so the runs made before these became options keep their names."""
+    suffix, so the runs made before these became options keep their names (the fluid and
+    damping settings never named the runs)."""
     tag = f"{case}_nt{nt}"
     if (blend_kernel, blur_width) != ("erf", 2.0):
         tag += f"_{blend_kernel}{blur_width:g}"
@@ -322,29 +324,16 @@ def run_csm(
     tol: float = 5e-3,
     max_wall: float | None = None,
     verbose: bool = True,
-    rho_f: float = 100.0,
-    gamma_factor: float = 3.0,
-    damp_all: bool = False,
-    blend_kernel: str = "erf",
-    blur_width: float = 2.0,
-    held_density: bool = False,
-    compression: str = "centred",
+    **settings,
 ):
-    """Run CSM1/2 until the tip is at rest; returns the result dict (also written to out)."""
-    variant = dict(
-        blend_kernel=blend_kernel,
-        blur_width=blur_width,
-        held_density=held_density,
-        compression=compression,
-    )
-    model, params, info = make_csm(
-        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all, **variant
-    )
+    """Run CSM1/2 until the tip is at rest; returns the result dict (also written to out).
+    ``settings``: the keywords of :func:`make_csm` (fluid, damping, blend, compression)."""
+    model, params, info = make_csm(case, nt, **settings)
     if t_max is None:
         t_max = 12.0 / info["omega1"]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    tag = csm_tag(case, nt, **variant)
+    tag = csm_tag(case, nt, **settings)
     state = model.initial_state(params)
     advance = jax.jit(model.advance)
     solid_mask = lambda s: s.phi[0] < 0  # noqa: E731
@@ -401,17 +390,7 @@ def run_csm(
             break
     f.close()
     save_state(out / f"{tag}_state.npz", state)
-    return summarize_csm(
-        case,
-        nt,
-        out,
-        ok=ok,
-        rho_f=rho_f,
-        tol=tol,
-        gamma_factor=gamma_factor,
-        damp_all=damp_all,
-        **variant,
-    )
+    return summarize_csm(case, nt, out, ok=ok, tol=tol, **settings)
 
 
 def save_state(path, state):
@@ -430,28 +409,15 @@ def summarize_csm(
     nt: int,
     out=DEFAULT_OUT,
     ok: bool = True,
-    rho_f: float = 100.0,
     tol: float | None = None,
-    gamma_factor: float = 3.0,
-    damp_all: bool = False,
-    blend_kernel: str = "erf",
-    blur_width: float = 2.0,
-    held_density: bool = False,
-    compression: str = "centred",
+    **settings,
 ):
     """Result dict of a CSM run from its CSV history (the last line is the answer; the
-    spread of u_y over the last 1 / omega1 measures how far from rest it still is)."""
-    variant = dict(
-        blend_kernel=blend_kernel,
-        blur_width=blur_width,
-        held_density=held_density,
-        compression=compression,
-    )
-    _, _, info = make_csm(
-        case, nt, rho_f=rho_f, gamma_factor=gamma_factor, damp_all=damp_all, **variant
-    )
+    spread of u_y over the last 1 / omega1 measures how far from rest it still is).
+    ``settings``: the run's keywords of :func:`make_csm`."""
+    _, _, info = make_csm(case, nt, **settings)
     out = Path(out)
-    tag = csm_tag(case, nt, **variant)
+    tag = csm_tag(case, nt, **settings)
     with open(out / f"{tag}.csv") as f:
         rows = [[float(x) for x in r] for r in list(csv.reader(f))[1:]]
     if tol is not None:  # cut the history where the rest criterion with this tol first holds
