@@ -461,7 +461,7 @@ def test_forward_mode_without_hand_transposes_equals_reverse_mode(disc_run):
     """``jax.jvp`` through ``rollout(..., hand_transposes=False)`` (JAX's own derivatives
     of the advection and the extra viscosity) gives the directional derivative that the
     reverse mode with the hand-written transposes gives, to round-off, on the disc run's
-    12 steps with every parameter moved at once.  The default refuses forward mode (JAX's
+    12 steps with both moduli (G, kappa) moved at once.  The default refuses forward mode (JAX's
     TypeError for a custom VJP), which rollout's docstring says."""
     model, state, params = disc_run["model"], disc_run["state"], disc_run["params"]
     dt = rd.stable_dt(model, state, params)

@@ -47,7 +47,8 @@ def test_material_point_found_after_a_move_longer_than_the_band():
     phi = np.hypot(X - c[0], Y - c[1]) - 0.1
     band = phi < 3 * g.h
     xi = jnp.asarray(np.stack([np.where(band, X - d[0], X), np.where(band, Y - d[1], Y)]))
-    X0 = np.array([[0.32 + 0.05, 0.32 - 0.1], [0.42, 0.42 + 0.02]])  # on and in the disc
+    # one point inside the disc, one just outside it (0.102 from the centre), in its band
+    X0 = np.array([[0.32 + 0.05, 0.32 - 0.1], [0.42, 0.42 + 0.02]])
     x_old, _ = material_point(xi, g, X0)
     assert np.all(np.abs(np.asarray(x_old) - X0) < 1e-12)  # stuck where it was
     x, res = material_point(xi, g, X0, phi=jnp.asarray(phi))

@@ -261,9 +261,10 @@ def make_csm(
     # stiffness x (1 + 24 (h/t)^2)) with the light fluid's added mass (gamma_factor 3, not 2).
     # (CSM2 at 4 cells ran with gamma = 2 omega1 on all the mass, fluid included: the damped
     # fluid resisted the flag's motion, overdamping it 2-3x.)
+    stiffening = bending_factor(blend_kernel, blur_width, nt)
     damp = SolidDamping(
         eta=solid_viscosity(c_l, h),
-        gamma=gamma_factor * omega * math.sqrt(bending_factor(blend_kernel, blur_width, nt)),
+        gamma=gamma_factor * omega * math.sqrt(stiffening),
         damp_all=damp_all,
         gravity=(0.0, -GRAV),
         zeta=zeta,
@@ -292,7 +293,7 @@ def make_csm(
         damp_all=damp_all,
         blend=blend_kernel,
         blur_width=blur_width,
-        bending_factor=bending_factor(blend_kernel, blur_width, nt),
+        bending_factor=stiffening,
         held_density=held_density,
         compression=compression,
         omega1=omega,
