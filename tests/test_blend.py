@@ -115,3 +115,11 @@ def test_sine_blend_rigid_translation_stays_stress_free():
     d = m.derived(s, p)
     assert float(jnp.max(jnp.abs(d["sigma_s"]))) < 1e-9
     assert math.isfinite(float(jnp.sum(d["rho"])))
+
+
+def test_kernel_spec_parses_and_names_bad_values():
+    assert blend.parse_kernel("sine:1") == ("sine", 1.0)
+    assert blend.parse_kernel("erf:2.5") == ("erf", 2.5)
+    for bad in ("sine", "sine:", "sine:0", "sine:-1", "sine:x", "sine:nan", "box:1"):
+        with pytest.raises(ValueError, match="sine|box"):
+            blend.parse_kernel(bad)

@@ -283,6 +283,7 @@ def test_cli_small_rotor_ladder_end_to_end_and_order_bound(tmp_path):
         h = load_rung(out / f"rotor_n{n}.npz")["header"]
         assert h["n"] == n and h["t_end"] == CI_T and h["scenario"] == "rotor"
         assert h["viscosity"] == "explicit"
+        assert (h["blend"], h["blur_width"]) == ("erf", 2.0)
     assert (out / "convergence.png").stat().st_size > 10_000
     rows = [ln.split(",") for ln in (out / "convergence.csv").read_text().splitlines()]
     head, rows = rows[0], [dict(zip(rows[0], x, strict=True)) for x in rows[1:]]
@@ -324,6 +325,12 @@ def test_cli_small_rotor_ladder_end_to_end_and_order_bound(tmp_path):
     assert r3.exit_code != 0 and "'viscosity': 'explicit'" in r3.output, r3.output
     r4 = runner.invoke(app, [*args, "--out", str(out), "--viscosity", "sideways"])
     assert r4.exit_code == 2 and "sideways" in r4.output, r4.output
+    # rungs of another blend kernel are refused by name too; a bad kernel spec before any run
+    ex = [*args, "--out", str(out), "--viscosity", "explicit"]
+    r5 = runner.invoke(app, [*ex, "--kernel", "sine:1"])
+    assert r5.exit_code != 0 and "'blend': 'erf'" in r5.output, r5.output
+    r6 = runner.invoke(app, [*ex, "--kernel", "sine:0"])
+    assert r6.exit_code == 2 and "sine:0" in r6.output, r6.output
 
 
 def test_parallel_jobs_run_every_rung(tmp_path):

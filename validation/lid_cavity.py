@@ -90,7 +90,7 @@ class BulkViscosity:
 
 
 def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5, viscosity=None,
-          fluid_mass="advected"):
+          fluid_mass="advected", blend="erf", blur_width=2.0):
     """(model, params, dt, zeta) for an n x n grid.
 
     ``viscosity=None`` (the validated set-up): zeta as the :class:`BulkViscosity` body force,
@@ -99,6 +99,7 @@ def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5, viscosity=None,
     so not in the solid) with ``Numerics.viscosity`` set so; implicit drops the diffusion
     limit from dt (docs/validation.md, "Implicit viscosity").  ``fluid_mass``: the
     ``Numerics`` option ("conserved" keeps the box's fluid mass; docs/method.md).
+    ``blend``, ``blur_width``: the blend kernel (docs/method.md, "Blend kernels").
     """
     h = 1.0 / n
     c = float(np.sqrt(lambda_f))
@@ -117,7 +118,8 @@ def build(n, lambda_f=100.0, kappa=10.0, beta=1.0, cfl=0.5, viscosity=None,
             ),
         ),
         Boundary(top=(Segment("velocity", velocity=(1.0, 0.0)),)),
-        Numerics(dt_fixed=dt, viscosity=viscosity or "explicit", fluid_mass=fluid_mass),
+        Numerics(dt_fixed=dt, viscosity=viscosity or "explicit", fluid_mass=fluid_mass,
+                 blend=blend, blur_width=blur_width),
         body_forces=(BulkViscosity(zeta),) if zeta > 0 and not as_fluid else (),
     )
     params = Params(
@@ -181,7 +183,9 @@ def run(n, t_end, every=0.05, state=None, snap_every=1.0, log=None, **kw):
 
 
 def cache_name(n, **kw):
-    items = "_".join(f"{k}{v:g}" for k, v in sorted(kw.items()))
+    items = "_".join(
+        f"{k}{v}" if isinstance(v, str) else f"{k}{v:g}" for k, v in sorted(kw.items())
+    )
     return f"lid_n{n}_{items}.npz" if items else f"lid_n{n}.npz"
 
 
@@ -437,11 +441,21 @@ def main(argv=None):
     )
     ap.add_argument("--out", default=str(RUNS))
     ap.add_argument("--figure", default=str(REPO / "docs" / "img" / "lid_cavity.png"))
+    ap.add_argument(
+        "--kernel", default="erf:2", help="blend kernel:width of every run (e.g. sine:1)"
+    )
     a = ap.parse_args(argv)
+    from refmap.blend import parse_kernel
+
+    blend_kw = {}
+    if parse_kernel(a.kernel) != ("erf", 2.0):
+        blend_kw = dict(zip(("blend", "blur_width"), parse_kernel(a.kernel), strict=True))
     if a.quick:
         a.grids, a.span_grids, a.sens_n = "32", "", 0
         if a.figure == ap.get_default("figure"):
             a.figure = str(Path(a.out) / "lid_cavity_quick.png")
+    if blend_kw and a.figure == ap.get_default("figure"):
+        a.figure = str(Path(a.out) / f"lid_cavity_{a.kernel.replace(':', '')}.png")
     grids = [int(s) for s in a.grids.split(",") if s]
     span = [int(s) for s in a.span_grids.split(",") if s]
     ref = load_reference()
@@ -458,7 +472,7 @@ def main(argv=None):
     results = {}
     for n in grids:
         te = a.t_span if n in span else a.t_loop
-        rows, info, snaps = run_cached(n, te, out_dir=a.out, log=log)
+        rows, info, snaps = run_cached(n, te, out_dir=a.out, log=log, **blend_kw)
         results[(n, "base")] = (rows, info)
     rw = winding(ref[:, 0], ref[:, 1])
     print(
@@ -497,7 +511,7 @@ def main(argv=None):
         rows_of = {}
         sens = {}
         for name, kw, prev in SENSITIVITY:
-            rows, info, _ = run_cached(n, a.t_loop, out_dir=a.out, log=log, **kw)
+            rows, info, _ = run_cached(n, a.t_loop, out_dir=a.out, log=log, **kw, **blend_kw)
             rows = rows[rows[:, 0] <= a.t_loop + 1e-9]
             rows_of[name] = rows
             c = compare(rows, ref)
@@ -520,7 +534,9 @@ def main(argv=None):
         summary["sensitivity"] = sens
 
     n_snap = max(grids)
-    _, _, snaps = run_cached(n_snap, a.t_span if n_snap in span else a.t_loop, out_dir=a.out)
+    _, _, snaps = run_cached(
+        n_snap, a.t_span if n_snap in span else a.t_loop, out_dir=a.out, **blend_kw
+    )
     figure(results, ref, snaps, n_snap, Path(a.figure))
     with open(Path(a.out) / "summary.json", "w") as f:
         json.dump(summary, f, indent=1, default=float)

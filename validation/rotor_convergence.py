@@ -75,12 +75,26 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--with-240", action="store_true", help="also run the 240^2 reference (vs240 rows)"
     )
+    ap.add_argument(
+        "--kernel",
+        default=None,
+        help="blend kernel:width for every rung (e.g. sine:1; default the rotor's own, erf:2); "
+        "use its own --out and --img",
+    )
+    ap.add_argument(
+        "--ladder",
+        default=",".join(map(str, LADDER)),
+        help="rungs to run (default the thesis's); the reference is --ref",
+    )
+    ap.add_argument("--ref", type=int, default=REF, help="reference grid to run (default 360)")
     a = ap.parse_args(argv)
 
     if not a.no_run:
         if a.with_240:
-            run_ladder("rotor", [60, 72, 90, 120], 240, T_END, a.out, jobs=a.jobs, viscosity="explicit")
-        run_ladder("rotor", LADDER, REF, T_END, a.out, jobs=a.jobs, viscosity="explicit")
+            run_ladder("rotor", [60, 72, 90, 120], 240, T_END, a.out, jobs=a.jobs,
+                       viscosity="explicit", kernel=a.kernel)
+        run_ladder("rotor", a.ladder, a.ref, T_END, a.out, jobs=a.jobs, viscosity="explicit",
+                   kernel=a.kernel)
     have = {n for n in [*LADDER, REF, 240] if rung_path(a.out, "rotor", n).exists()}
     lines = [
         "| comparison | rungs | reference | u | v | xi_x | xi_y | grad_xi |",

@@ -42,6 +42,20 @@ def check_kernel(kernel: str) -> str:
     return kernel
 
 
+def parse_kernel(spec: str) -> tuple[str, float]:
+    """``"sine:1"`` -> ``("sine", 1.0)``: a kernel and its width in cells, as the validation
+    drivers and ``blend_sweep`` take them on the command line."""
+    kernel, sep, width = str(spec).partition(":")
+    check_kernel(kernel)
+    try:
+        w = float(width)
+    except ValueError:
+        w = float("nan")
+    if not sep or not w > 0 or not math.isfinite(w):
+        raise ValueError(f"kernel spec must be KERNEL:WIDTH with WIDTH > 0 cells (e.g. 'sine:1'), got {spec!r}")
+    return kernel, w
+
+
 def heaviside(phi, kernel: str, width):
     """Blend weight ``H(phi)`` (0 in the solid, 1 in the fluid) for ``kernel`` at absolute
     width ``width`` (the erf scale ``w`` or the sine half-width ``eps``, in length units).
@@ -94,4 +108,4 @@ def bending_factor(kernel: str, width_h: float, cells_across: float) -> float:
     return 1.0 + 24.0 * first_moment(kernel, width_h) / cells_across**2
 
 
-__all__ = ["KERNELS", "bending_factor", "check_kernel", "first_moment", "heaviside", "presence", "support"]
+__all__ = ["KERNELS", "bending_factor", "check_kernel", "first_moment", "heaviside", "parse_kernel", "presence", "support"]

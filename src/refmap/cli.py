@@ -253,6 +253,9 @@ def convergence_cmd(
     viscosity: str = typer.Option(None, "--viscosity",
                                   help="explicit or implicit viscous step for every rung (default: the "
                                        "scenario's; the thesis's rotor study is explicit)"),
+    kernel: str = typer.Option(None, "--kernel",
+                               help="blend kernel and width in cells for every rung, e.g. sine:1 or "
+                                    "erf:2 (default: the scenario's)"),
 ):
     """Grid-convergence study: run a ladder of grids to a common time (finished rungs are
     reused), compare each with the reference on the coarsest grid's nodes (discrete L2 and
@@ -261,12 +264,13 @@ def convergence_cmd(
     from refmap.convergence import ConvergenceError, check_study, format_table, study
 
     try:
-        check_study(scenario, grids, ref, t_end, viscosity)
+        check_study(scenario, grids, ref, t_end, viscosity, kernel)
     except ConvergenceError as e:
         _fail(str(e))
     out_dir = out if out is not None else Path("runs") / f"convergence_{scenario}"
     try:
-        st = study(scenario, grids, ref, t_end, out_dir, jobs=jobs, margin=margin, viscosity=viscosity)
+        st = study(scenario, grids, ref, t_end, out_dir, jobs=jobs, margin=margin,
+                   viscosity=viscosity, kernel=kernel)
     except ConvergenceError as e:
         _fail(str(e), 3)
     typer.echo(format_table(st))

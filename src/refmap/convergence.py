@@ -86,20 +86,36 @@ def parse_grids(text) -> list[int]:
     return sorted(out)
 
 
-def _with_viscosity(case, viscosity: str | None):
-    """``case`` with its viscous step replaced (None: the scenario's own); a bad value gets
-    :class:`refmap.state.Numerics`' own error."""
-    if viscosity is None:
-        return case
+def _with_numerics(case, viscosity: str | None, kernel: str | None = None):
+    """``case`` with its viscous step and its blend kernel replaced (None: the scenario's
+    own).  ``kernel`` is a ``"KERNEL:WIDTH"`` spec (``"sine:1"``: the sine kernel of
+    half-width 1 h; :func:`refmap.blend.parse_kernel`).  A bad value gets
+    :class:`refmap.state.Numerics`' own error, as a :class:`ConvergenceError`."""
+    from refmap.blend import parse_kernel
+
+    changes = {}
     try:
-        return case.replace(numerics=dataclasses.replace(case.numerics, viscosity=viscosity))
+        if viscosity is not None:
+            changes["viscosity"] = viscosity
+        if kernel is not None:
+            changes["blend"], changes["blur_width"] = parse_kernel(kernel)
+        if not changes:
+            return case
+        return case.replace(numerics=dataclasses.replace(case.numerics, **changes))
     except ValueError as e:
         raise ConvergenceError(str(e)) from None
 
 
-def check_study(scenario: str, grids, ref: int, t_end: float | None, viscosity: str | None = None):
+def check_study(
+    scenario: str,
+    grids,
+    ref: int,
+    t_end: float | None,
+    viscosity: str | None = None,
+    kernel: str | None = None,
+):
     """Validate everything before any run; returns (grids, ref, t_end, {n: case}).
-    ``viscosity``: as in :func:`run_rung`."""
+    ``viscosity``, ``kernel``: as in :func:`run_rung`."""
     from refmap.case import CaseError
     from refmap.scenarios import SCENARIOS, get_case
 
@@ -118,7 +134,7 @@ def check_study(scenario: str, grids, ref: int, t_end: float | None, viscosity: 
     cases = {}
     for n in [*grids, ref]:
         try:
-            case = _with_viscosity(get_case(scenario, n), viscosity)
+            case = _with_numerics(get_case(scenario, n), viscosity, kernel)
             if t_end is not None:
                 case = case.replace(t_end=float(t_end))
             cases[n] = case.validate()
@@ -163,10 +179,13 @@ def _state_arrays(state) -> dict:
     return {k: np.asarray(getattr(state, k)) for k in ("t", "step", "v", "rho_f", "xi", "phi")}
 
 
-def _check_header(h: dict, path: Path, scenario: str, n: int, t_end: float, viscosity: str):
-    want = dict(scenario=scenario, n=n, t_end=t_end, viscosity=viscosity)
-    # rungs written before the header named the viscous step were all explicit
-    got = {k: h.get(k, "explicit" if k == "viscosity" else None) for k in want}
+# what rungs written before the header named them were run with
+_OLD_HEADER = dict(viscosity="explicit", blend="erf", blur_width=2.0)
+
+
+def _check_header(h: dict, path: Path, scenario: str, n: int, t_end: float, numerics: dict):
+    want = dict(scenario=scenario, n=n, t_end=t_end, **numerics)
+    got = {k: h.get(k, _OLD_HEADER.get(k)) for k in want}
     if got != want:
         raise ConvergenceError(
             f"{path} holds {got}, not {want}; use another output folder or delete the file"
@@ -184,12 +203,13 @@ def run_rung(
     log=None,
     stop_after_chunks: int | None = None,
     viscosity: str | None = None,
+    kernel: str | None = None,
 ) -> dict:
     """Run one rung to ``t_end`` (or reuse the finished file); returns a summary dict.
 
-    ``viscosity`` ("explicit" or "implicit") replaces the scenario's viscous step (None:
-    the scenario's own); it is recorded in the rung's header, and a finished rung made
-    with the other one is refused.  ``stop_after_chunks`` (tests only) stops early after
+    ``viscosity`` ("explicit" or "implicit") replaces the scenario's viscous step and
+    ``kernel`` (``"sine:1"``, ``"erf:2"``) its blend (None: the scenario's own); both are
+    recorded in the rung's header, and a finished rung made with other ones is refused.  ``stop_after_chunks`` (tests only) stops early after
     that many chunks, leaving a partial checkpoint, to exercise the restart.
     """
     import jax
@@ -202,11 +222,15 @@ def run_rung(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     final = rung_path(out, scenario, n)
-    case = _with_viscosity(get_case(scenario, n), viscosity).replace(t_end=float(t_end))
-    viscosity = case.numerics.viscosity
+    case = _with_numerics(get_case(scenario, n), viscosity, kernel).replace(t_end=float(t_end))
+    numerics = dict(
+        viscosity=case.numerics.viscosity,
+        blend=case.numerics.blend,
+        blur_width=float(case.numerics.blur_width),
+    )
     if final.exists():
         h = load_rung(final)["header"]
-        _check_header(h, final, scenario, n, t_end, viscosity)
+        _check_header(h, final, scenario, n, t_end, numerics)
         return dict(n=n, path=str(final), reused=True, steps=h["steps"], wall_s=h["wall_s"])
 
     model, params = case.build()
@@ -215,7 +239,7 @@ def run_rung(
     if partial.exists():
         z = load_rung(partial)
         h = z["header"]
-        _check_header(h, partial, scenario, n, t_end, viscosity)
+        _check_header(h, partial, scenario, n, t_end, numerics)
         if h.get("n_chunks") != n_chunks:
             raise ConvergenceError(
                 f"{partial} was written with {h.get('n_chunks')} chunks, not {n_chunks}"
@@ -241,7 +265,7 @@ def run_rung(
         scenario=scenario,
         n=n,
         t_end=float(t_end),
-        viscosity=viscosity,
+        **numerics,
         n_chunks=n_chunks,
         grid=dict(
             nx=case.grid.nx,
@@ -294,9 +318,9 @@ def run_rung(
 
 
 def _rung_worker(args):
-    scenario, n, t_end, out, n_chunks, checkpoint_s, viscosity = args
+    scenario, n, t_end, out, n_chunks, checkpoint_s, viscosity, kernel = args
     return run_rung(scenario, n, t_end, out, n_chunks=n_chunks, checkpoint_s=checkpoint_s,
-                    viscosity=viscosity)
+                    viscosity=viscosity, kernel=kernel)
 
 
 def run_ladder(
@@ -311,14 +335,15 @@ def run_ladder(
     checkpoint_s: float = 120.0,
     log=None,
     viscosity: str | None = None,
+    kernel: str | None = None,
 ) -> dict[int, dict]:
     """Run (or reuse) every rung and the reference; returns {n: summary}.
 
     With ``jobs > 1`` the rungs run in that many separate processes (largest first, so the
-    long reference starts at once); each process runs one rung on one core.  ``viscosity``:
-    as in :func:`run_rung`, for every rung.
+    long reference starts at once); each process runs one rung on one core.  ``viscosity``,
+    ``kernel``: as in :func:`run_rung`, for every rung.
     """
-    grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end, viscosity)
+    grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end, viscosity, kernel)
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ConvergenceError(f"jobs must be an integer >= 1, got {jobs!r}")
     log = log or (lambda msg: print(msg, flush=True))
@@ -331,7 +356,7 @@ def run_ladder(
         p = rung_path(out, scenario, n)
         if p.exists():
             results[n] = run_rung(scenario, n, t_end, out, n_chunks=n_chunks, log=log,
-                                  viscosity=viscosity)
+                                  viscosity=viscosity, kernel=kernel)
             log(f"[{scenario} n={n}] finished earlier: {p}")
         else:
             todo.append(n)
@@ -339,7 +364,7 @@ def run_ladder(
         for n in todo:
             results[n] = run_rung(
                 scenario, n, t_end, out, n_chunks=n_chunks, checkpoint_s=checkpoint_s, log=log,
-                viscosity=viscosity,
+                viscosity=viscosity, kernel=kernel,
             )
     else:
         import multiprocessing as mp
@@ -349,7 +374,7 @@ def run_ladder(
         with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx) as ex:
             futs = {
                 n: ex.submit(
-                    _rung_worker, (scenario, n, t_end, str(out), n_chunks, checkpoint_s, viscosity)
+                    _rung_worker, (scenario, n, t_end, str(out), n_chunks, checkpoint_s, viscosity, kernel)
                 )
                 for n in todo
             }
@@ -664,14 +689,17 @@ def study(
     log=None,
     plot: bool = True,
     viscosity: str | None = None,
+    kernel: str | None = None,
 ) -> Study:
     """Run (or reuse) the ladder, analyse it, write ``convergence.csv`` and
-    ``convergence.png`` into ``out`` and return the :class:`Study`.  ``viscosity``: as in
-    :func:`run_rung`."""
-    grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end, viscosity)
+    ``convergence.png`` into ``out`` and return the :class:`Study`.  ``viscosity``,
+    ``kernel``: as in :func:`run_rung`."""
+    grids, ref, t_end, _ = check_study(scenario, grids, ref, t_end, viscosity, kernel)
     if not (isinstance(margin, (int, float)) and math.isfinite(margin) and margin >= 0):
         raise ConvergenceError(f"margin must be a number >= 0, got {margin!r}")
-    res = run_ladder(scenario, grids, ref, t_end, out, jobs=jobs, log=log, viscosity=viscosity)
+    res = run_ladder(
+        scenario, grids, ref, t_end, out, jobs=jobs, log=log, viscosity=viscosity, kernel=kernel
+    )
     st = analyse([res[n]["path"] for n in grids], res[ref]["path"], margin=margin)
     write_csv(st, Path(out) / "convergence.csv")
     if plot:
