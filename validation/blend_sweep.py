@@ -15,6 +15,8 @@ width, the run goes to the scenario's end time at ``--n`` cells and is inspected
   ``d_xx d_yy / 16`` (amplitude 1 on a pure checkerboard, ``O((k h)^4)`` on smooth fields);
 * ``min_gap`` / ``overlap``: for cases with contact, the smallest gap between two solids
   or a solid and a wall, in cells, and the largest overlap area in cells^2;
+* ``area``: the largest relative change of a solid's blurred area (its solid fractions'
+  sum) from t = 0 over the checks, signed (the swelling of issue 15 item 4 shows here);
 * ``x_end``, ``y_end``: the first solid's centroid at the end (to see how far the kernels
   change the physics) and the run's wall time.
 
@@ -91,7 +93,8 @@ def run_one(name: str, kernel: str, width: float, n: int, checks: int, t_end=Non
     adv = jax.jit(lambda s, t: model.advance(s, params, t, speed_limit=limit))
     diag = jax.jit(lambda s: model.diagnostics(s, params))
     row = dict(case=name, kernel=kernel, width=width, n=n, t_end=case.t_end, ok=True, t_stop=case.t_end,
-               wrinkle=0.0, checker=0.0, min_gap=math.inf, overlap=0.0, steps=0)
+               wrinkle=0.0, checker=0.0, min_gap=math.inf, overlap=0.0, steps=0, area=0.0)
+    area0 = [float(so["area"]) for so in diag(state).get("solids", [])]
     t0 = time.perf_counter()
     for k in range(1, checks + 1):
         t = case.t_end * k / checks
@@ -109,6 +112,10 @@ def run_one(name: str, kernel: str, width: float, n: int, checks: int, t_end=Non
         for key in ("contact_overlap_area", "overlap_area"):
             if key in d:
                 row["overlap"] = max(row["overlap"], float(np.max(d[key])) / model.h**2)
+        for a0, so in zip(area0, d.get("solids", []), strict=True):
+            da = float(so["area"]) / a0 - 1.0 if a0 > 0 else 0.0
+            if abs(da) > abs(row["area"]):
+                row["area"] = da
         if d.get("solids"):
             row["x_end"] = float(d["solids"][0]["centroid_x"])
             row["y_end"] = float(d["solids"][0]["centroid_y"])
@@ -119,16 +126,18 @@ def run_one(name: str, kernel: str, width: float, n: int, checks: int, t_end=Non
 
 
 def table(rows) -> str:
-    head = "| case | kernel | ok | wrinkle | checker | min gap (h) | overlap (h²) | centroid at end | steps | wall (s) |"
-    out = [head, "|" + "---|" * 10]
+    head = ("| case | kernel | ok | wrinkle | checker | min gap (h) | overlap (h²) | area change "
+            "| centroid at end | steps | wall (s) |")
+    out = [head, "|" + "---|" * 11]
     for r in rows:
         ok = "yes" if r["ok"] else f"**blew up** t = {r['t_stop']:.3g}"
         gap = "" if r.get("min_gap") is None else f"{r['min_gap']:.2f}"
         ov = f"{r['overlap']:.2f}" if r.get("min_gap") is not None else ""
         cen = f"({r['x_end']:.3f}, {r['y_end']:.3f})" if "x_end" in r else ""
+        area = f"{r['area']:+.1%}" if "area" in r else ""
         out.append(
             f"| {r['case']} | {r['kernel']} {r['width']:g} | {ok} | {r['wrinkle']:.3f} | "
-            f"{r['checker']:.1e} | {gap} | {ov} | {cen} | {r['steps']} | {r['wall_s']:.0f} |"
+            f"{r['checker']:.1e} | {gap} | {ov} | {area} | {cen} | {r['steps']} | {r['wall_s']:.0f} |"
         )
     return "\n".join(out)
 
