@@ -123,3 +123,23 @@ def test_kernel_spec_parses_and_names_bad_values():
     for bad in ("sine", "sine:", "sine:0", "sine:-1", "sine:x", "sine:nan", "box:1"):
         with pytest.raises(ValueError, match="sine|box"):
             blend.parse_kernel(bad)
+
+
+def test_lid_cavity_script_takes_a_kernel_and_caches_its_runs_apart():
+    # validation/lid_cavity.py --kernel: the kernel reaches the model, and its runs are
+    # cached apart from the erf runs (whose file names stay those of the runs made before)
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "validation" / "lid_cavity.py"
+    spec = importlib.util.spec_from_file_location("lid_cavity", path)
+    L = importlib.util.module_from_spec(spec)
+    sys.modules["lid_cavity"] = L  # dataclasses look their module up there
+    spec.loader.exec_module(L)
+    model, *_ = L.build(32, blend="sine", blur_width=1.0)
+    assert (model.numerics.blend, model.numerics.blur_width) == ("sine", 1.0)
+    model, *_ = L.build(32)
+    assert (model.numerics.blend, model.numerics.blur_width) == ("erf", 2.0)
+    assert L.cache_name(32) == "lid_n32.npz"
+    assert L.cache_name(32, blend="sine", blur_width=1.0) == "lid_n32_blendsine_blur_width1.npz"

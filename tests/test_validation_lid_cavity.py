@@ -106,14 +106,3 @@ def test_lid_cavity_disc_fluid_mass_conserved_32():
     assert abs(area[-1]) < 0.05 and np.abs(area).max() < 0.06
     assert np.abs(mass).max() < 1e-10
 
-
-def test_blend_kernel_reaches_the_model_and_names_its_own_cache():
-    # the script's --kernel option: the kernel is the model's, and its runs are cached
-    # apart from the erf runs (whose file names stay those of the runs made before)
-    L = _load()
-    model, *_ = L.build(32, blend="sine", blur_width=1.0)
-    assert (model.numerics.blend, model.numerics.blur_width) == ("sine", 1.0)
-    model, *_ = L.build(32)
-    assert (model.numerics.blend, model.numerics.blur_width) == ("erf", 2.0)
-    assert L.cache_name(32) == "lid_n32.npz"
-    assert L.cache_name(32, blend="sine", blur_width=1.0) == "lid_n32_blendsine_blur_width1.npz"
