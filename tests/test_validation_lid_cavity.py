@@ -105,4 +105,3 @@ def test_lid_cavity_disc_fluid_mass_conserved_32():
     mass = rows[:, 7] / rows[0, 7] - 1.0
     assert abs(area[-1]) < 0.05 and np.abs(area).max() < 0.06
     assert np.abs(mass).max() < 1e-10
-

@@ -43,6 +43,7 @@ import jax
 import numpy as np
 
 import refmap  # noqa: F401  (enables float64)
+from refmap.blend import parse_kernel
 from refmap.casefile import load_case
 from refmap.scenarios import SCENARIOS, get_case
 
@@ -156,10 +157,7 @@ def main(argv=None):
         print(table([json.loads(x) for x in Path(a.table).read_text().splitlines() if x.strip()]))
         return
     names = a.only.split(",") if a.only else list(SCENARIOS) + list(EXAMPLES)
-    kernels = []
-    for kw in a.kernels.split(","):
-        k, w = kw.split(":")
-        kernels.append((k, float(w)))
+    kernels = [parse_kernel(kw) for kw in a.kernels.split(",")]
     out = Path(a.out)
     done = set()
     if out.exists():

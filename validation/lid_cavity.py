@@ -447,9 +447,9 @@ def main(argv=None):
     a = ap.parse_args(argv)
     from refmap.blend import parse_kernel
 
-    blend_kw = {}
-    if parse_kernel(a.kernel) != ("erf", 2.0):
-        blend_kw = dict(zip(("blend", "blur_width"), parse_kernel(a.kernel), strict=True))
+    kernel = parse_kernel(a.kernel)
+    # the erf 2 runs keep the cache names of the runs made before the option existed
+    blend_kw = {} if kernel == ("erf", 2.0) else dict(zip(("blend", "blur_width"), kernel, strict=True))
     if a.quick:
         a.grids, a.span_grids, a.sens_n = "32", "", 0
         if a.figure == ap.get_default("figure"):

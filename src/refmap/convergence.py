@@ -209,8 +209,9 @@ def run_rung(
 
     ``viscosity`` ("explicit" or "implicit") replaces the scenario's viscous step and
     ``kernel`` (``"sine:1"``, ``"erf:2"``) its blend (None: the scenario's own); both are
-    recorded in the rung's header, and a finished rung made with other ones is refused.  ``stop_after_chunks`` (tests only) stops early after
-    that many chunks, leaving a partial checkpoint, to exercise the restart.
+    recorded in the rung's header, and a finished rung made with other ones is refused.
+    ``stop_after_chunks`` (tests only) stops early after that many chunks, leaving a
+    partial checkpoint, to exercise the restart.
     """
     import jax
     import jax.numpy as jnp
