@@ -47,7 +47,7 @@ import numpy as np
 from jax import lax
 
 from refmap import narrowband
-from refmap.levelset import Periodic, _dims, _neighbours, _sum, unit_normal
+from refmap.levelset import Periodic, _dims, _neighbours, _sum, normalised, unit_normal
 
 
 def _nb(a, axis, periodic, fill):
@@ -780,11 +780,8 @@ def _tile_normal(P, h, periodic):
             m, p = jnp.where(onb[2 * a], 2 * c - p, m), jnp.where(onb[2 * a + 1], 2 * c - m, p)
         pairs.append((m, p))
     g = [(p - m) / (2 * h[a]) for a, (m, p) in enumerate(pairs)]
-    mag2 = _sum([ga * ga for ga in g])
-    nonzero = mag2 > 0
-    inv = jnp.where(nonzero, 1 / jnp.sqrt(jnp.where(nonzero, mag2, 1.0)), 0.0)
     beyond = narrowband.interior(out1, 1, nd)
-    return jnp.stack([jnp.where(beyond, 0.0, ga * inv) for ga in g])
+    return jnp.stack([jnp.where(beyond, 0.0, n) for n in normalised(g)])
 
 
 def _extend_tiles(f, phi, flags, h, band, capacity, tile, iters, periodic, smooth):

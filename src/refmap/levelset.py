@@ -111,10 +111,16 @@ def unit_normal(phi, dx, dy, periodic: Periodic | None = None, *, dz=None):
     # (it fixes the order in which reverse-mode sums cotangents, so 2D gradients are bitwise too)
     nb = [_neighbours(phi, a - d, periodic[a]) for a in range(d)]
     g = [(p - m) / (2 * h[a]) for a, (m, p) in enumerate(nb)]
+    return jnp.stack(normalised(g), axis=-(d + 1))
+
+
+def normalised(g):
+    """Components ``g`` (a list of arrays) divided by their Euclidean norm; 0 where the norm
+    is exactly 0, with finite derivatives there (the divisor is guarded in both passes)."""
     mag2 = _sum([ga * ga for ga in g])
     nonzero = mag2 > 0
     inv = jnp.where(nonzero, 1 / jnp.sqrt(jnp.where(nonzero, mag2, 1.0)), 0.0)
-    return jnp.stack([ga * inv for ga in g], axis=-(d + 1))
+    return [ga * inv for ga in g]
 
 
 def heaviside_blur(phi, width):

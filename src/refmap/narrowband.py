@@ -109,16 +109,19 @@ def tile_flags(mask, tile):
     """(ntx, nty[, ntz]): which tiles hold a True node of ``mask`` (nx, ny[, nz])."""
     nd = len(tile)
     nt = n_tiles(mask.shape, tile)
-    m = _pad_to(mask, tuple(n * t for n, t in zip(nt, tile, strict=True)), False)
+    m = pad_high(mask, tuple(n * t for n, t in zip(nt, tile, strict=True)), False)
     split = sum(((n, t) for n, t in zip(nt, tile, strict=True)), ())
     return jnp.any(m.reshape(split), axis=tuple(range(1, 2 * nd, 2)))
 
 
-def _pad_to(a, shape, fill):
-    """``a`` padded with ``fill`` at the high end of its last ``len(shape)`` axes."""
+def pad_high(a, shape, fill, crop: int = 0):
+    """``a`` without its first ``crop`` entries along each of its last ``len(shape)`` axes,
+    then padded with ``fill`` (or cut) at their high end to ``shape``: one pass."""
     nd = len(shape)
     lead = a.ndim - nd
-    widths = [(0, 0, 0)] * lead + [(0, s - a.shape[lead + i], 0) for i, s in enumerate(shape)]
+    widths = [(0, 0, 0)] * lead + [
+        (-crop, s - (a.shape[lead + i] - crop), 0) for i, s in enumerate(shape)
+    ]
     return lax.pad(a, jnp.asarray(fill, dtype=a.dtype), widths)
 
 
@@ -163,7 +166,7 @@ def gather(a, tiles: Tiles, tile, periodic: Periodic, fill, halo: int = HALO):
     value is ``fill``; across a periodic one the axis wraps."""
     nd = len(tile)
     nt = n_tiles(a.shape[-nd:], tile)
-    a = _pad_to(a, tuple(n * t for n, t in zip(nt, tile, strict=True)), fill)
+    a = pad_high(a, tuple(n * t for n, t in zip(nt, tile, strict=True)), fill)
     for i in range(nd):
         axis = a.ndim - nd + i
         if periodic[i]:

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from refmap import blend
+from refmap import blend, narrowband
 from refmap.operators import corner_average, grad_corner, node_average
 
 #: erf(x) is exactly 1.0 in float64 for x >= 5.9216 (checked in the tests): 1 - H = 0 there
@@ -55,14 +55,6 @@ def n_tiles(shape, tile) -> tuple[int, ...]:
     return tuple(-(-(n + 1) // t) for n, t in zip(shape, tile, strict=True))
 
 
-def _pad_high(a, size, fill, nd, crop: int = 0):
-    """``a`` without its first ``crop`` entries along each of its last ``nd`` axes, then
-    padded with ``fill`` (or cut) at their high end to ``size``: one pass."""
-    lead = a.ndim - nd
-    widths = [(0, 0, 0)] * lead + [(-crop, s - (a.shape[lead + i] - crop), 0) for i, s in enumerate(size)]
-    return lax.pad(a, jnp.asarray(fill, dtype=a.dtype), widths)
-
-
 def window_min(phip, tile, extra: int = 0):
     """(S, ntx, nty[, ntz]): the least value of the padded level sets ``phip`` (S, nx + 2,
     ny + 2[, nz + 2]) in each tile's window.  One axis at a time (a separable minimum: a
@@ -71,7 +63,7 @@ def window_min(phip, tile, extra: int = 0):
     nd = len(tile)
     shape = tuple(s - 2 - 2 * extra for s in phip.shape[-nd:])
     nt = n_tiles(shape, tile)
-    m = _pad_high(phip, tuple(k * t + 2 for k, t in zip(nt, tile, strict=True)), jnp.inf, nd, extra)
+    m = narrowband.pad_high(phip, tuple(k * t + 2 for k, t in zip(nt, tile, strict=True)), jnp.inf, extra)
     lead = m.ndim - nd
     for a in range(nd):
         win = [1] * m.ndim
@@ -112,8 +104,7 @@ def gather(a, listed: Listed, tile, fill, extra: int = 0):
     (S, cap, ..., T + 2, T + 2[, T + 2]); beyond the high edge the value is ``fill``.
     ``extra``: ``a`` has that many more ghost layers on each side (not read; padding once
     with two layers for the map advection and the stress saves a copy of every map)."""
-    nd = len(tile)
-    a = _pad_high(a, tuple(k * t + 2 for k, t in zip(listed.nt, tile, strict=True)), fill, nd, extra)
+    a = narrowband.pad_high(a, tuple(k * t + 2 for k, t in zip(listed.nt, tile, strict=True)), fill, extra)
     starts = tuple(p * t for p, t in zip(listed.pos, tile, strict=True))
     return _windows(a, starts, tuple(t + 2 for t in tile), per_solid=True)
 
