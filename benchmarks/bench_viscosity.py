@@ -50,9 +50,11 @@ from refmap.model import LIMIT_NAMES
 from refmap.scenarios import get_case
 
 
-def run(n, t_end, viscosity="explicit", dt_divide=1.0):
+def run(n, t_end, viscosity="explicit", dt_divide=1.0, rtol=None):
     case = get_case("rotor", n)
     num = dataclasses.replace(case.numerics, viscosity=viscosity, cfl=case.numerics.cfl / dt_divide)
+    if rtol is not None:
+        num = dataclasses.replace(num, viscosity_rtol=rtol)
     model, params = dataclasses.replace(case, numerics=num).build()
     s0 = model.initial_state(params)
     advance = jax.jit(model.advance)
@@ -105,9 +107,9 @@ def equal_accuracy_report(runs, divides, tolerance):
     and at the finest size the modes' difference against a Richardson estimate of the
     grid error."""
     sizes = sorted(runs)
-    if len(sizes) < 2:
-        return
     print("\nequal accuracy: each run against the next finer grid's explicit run")
+    if len(sizes) < 2:
+        print("(one size: no finer grid)")
     print(
         f"{'n':>5} {'against':>8} {'run':>12} {'wall s':>8} {'err v':>10} {'/ expl':>7} "
         f"{'err xi':>10} {'/ expl':>7}"
@@ -176,6 +178,12 @@ def main(argv=None):
         help="implicit runs with the time step divided by each of these (e.g. 1,2,4)",
     )
     ap.add_argument(
+        "--implicit-rtols",
+        default=None,
+        help="implicit runs at each of these solver tolerances (Numerics.viscosity_rtol; "
+        "default: the scenario's), e.g. 1e-6,1e-4",
+    )
+    ap.add_argument(
         "--tolerance",
         type=float,
         default=0.05,
@@ -191,6 +199,14 @@ def main(argv=None):
         ap.error(f"--implicit-divides {a.implicit_divides!r}: not a list of numbers")
     if any(k < 1 for k in divides):
         ap.error(f"--implicit-divides {a.implicit_divides!r}: every entry must be >= 1")
+    try:
+        rtols = (
+            [None] if a.implicit_rtols is None else [float(x) for x in a.implicit_rtols.split(",")]
+        )
+    except ValueError:
+        ap.error(f"--implicit-rtols {a.implicit_rtols!r}: not a list of numbers")
+    if any(r is not None and not 0 < r < 1 for r in rtols):
+        ap.error(f"--implicit-rtols {a.implicit_rtols!r}: every entry must lie in (0, 1)")
     ref_text = f"explicit with dt / {a.ref_factor:g}" if a.ref_factor else "none"
     print(f"rotor from rest to t = {a.t_end}; time reference: {ref_text}")
     print(
@@ -201,7 +217,11 @@ def main(argv=None):
     for n in (int(x) for x in a.sizes.split(",")):
         out = {"explicit": run(n, a.t_end, "explicit")}
         for k in divides:
-            out["implicit" if k == 1 else f"implicit/{k:g}"] = run(n, a.t_end, "implicit", k)
+            for rt in rtols:
+                name = ("implicit" if k == 1 else f"implicit/{k:g}") + (
+                    "" if rt is None else f"@{rt:g}"
+                )
+                out[name] = run(n, a.t_end, "implicit", k, rt)
         ref = run(n, a.t_end, "explicit", a.ref_factor) if a.ref_factor else None
         if ref is not None:
             out["reference"] = ref
