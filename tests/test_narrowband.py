@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax import lax
 
 import refmap  # noqa: F401  (float64)
 from refmap import narrowband
@@ -317,3 +318,45 @@ def test_neighbours_read_the_grid_in_both_layouts(shape, tile, periodic, cap_las
         np.testing.assert_array_equal(g, e)
     back = narrowband.cap_first(narrowband.cap_last(ghosted, nd), nd)
     np.testing.assert_array_equal(np.asarray(back), np.asarray(ghosted))
+
+
+def _switch_branches(n):
+    """Three branches whose reverse mode needs intermediates of three different shapes."""
+    return [
+        lambda x: jnp.sin(jnp.outer(x, x)).sum(axis=0),
+        lambda x: jnp.cos(jnp.outer(x, x[: n // 2])).sum(axis=1),
+        lambda x: jnp.tanh(jnp.outer(x[: n // 4], x)).sum(axis=0),
+    ]
+
+
+@pytest.mark.parametrize("nbranch", [2, 3])
+def test_switch_equals_lax_switch_in_value_and_gradient(nbranch):
+    n = 16
+    x = jnp.linspace(-1.0, 1.0, n)
+    branches = _switch_branches(n)[:nbranch]
+    for i in range(nbranch):
+        def ours(x, i=i):
+            return jnp.sum(narrowband.switch(jnp.asarray(i), branches, x) ** 2)
+
+        def plain(x, i=i):
+            return jnp.sum(lax.switch(jnp.asarray(i), branches, x) ** 2)
+
+        assert float(ours(x)) == float(plain(x))
+        np.testing.assert_allclose(jax.grad(ours)(x), jax.grad(plain)(x), rtol=1e-14, atol=1e-14)
+
+
+def test_switch_keeps_only_the_operands_for_the_backward_pass():
+    """lax.switch keeps every branch's residuals in reverse mode (JAX joins them; only
+    equal shapes share a slot); narrowband.switch keeps the operands: here n values against
+    more than three n x n intermediates' worth."""
+    n = 64
+    x = jnp.linspace(-1.0, 1.0, n)
+    branches = _switch_branches(n)
+
+    def kept(switch):
+        _, vjp = jax.vjp(lambda x: switch(jnp.asarray(1), branches, x), x)
+        return sum(leaf.size for leaf in jax.tree_util.tree_leaves(vjp) if hasattr(leaf, "size"))
+
+    plain, ours = kept(lax.switch), kept(narrowband.switch)
+    assert plain > n * n  # the three branches' outer products, or their derivatives
+    assert ours <= 4 * n  # the operand (and the index), nothing of n^2 size

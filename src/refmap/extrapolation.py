@@ -666,9 +666,7 @@ def extend(
 
     # the first capacity that holds the largest band; past the last one, the full grid
     level = narrowband.ladder_level(flags, ladder)
-    if len(ladder) == 1:
-        return lax.cond(level == 0, compact(ladder[0]), dense, f, phi)
-    return lax.switch(level, [compact(c) for c in ladder] + [dense], f, phi)
+    return narrowband.switch(level, [compact(c) for c in ladder] + [dense], f, phi)
 
 
 #: default tile side of :func:`extend`'s band tiles, by grid dimension: 8 x 8 in 2D, 8 x 8 x 8
@@ -746,7 +744,7 @@ def _extend_window(f, phi, band, window, dense, periodic):
         out = dense(fw, pw)
         return jax.vmap(lambda a, o, st: lax.dynamic_update_slice(a, o, (zero, *st)))(f, out, starts)
 
-    return lax.cond(jnp.all(fits), windowed, dense, f, phi)
+    return narrowband.switch(jnp.where(jnp.all(fits), 0, 1), [windowed, dense], f, phi)
 
 
 def _unknown(phi, band, periodic):

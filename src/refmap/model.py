@@ -883,7 +883,7 @@ class Model:
         # the first rung that holds every solid's tiles of both lists; past the last: full grid
         level = jnp.maximum(narrowband.ladder_level(flags_b, caps_b), narrowband.ladder_level(flags_s, caps_s))
         branches = [tiled(b, c) for b, c in zip(caps_b, caps_s, strict=True)] + [dense]
-        flat = lax.switch(level, branches, None)
+        flat = narrowband.switch(level, branches, None)
         sizes = [math.prod(cshape)] * len(s_f) + [math.prod(nshape), math.prod(cshape), math.prod(nshape)]
         shapes = [cshape] * len(s_f) + [nshape, cshape, nshape]
         parts = jnp.split(flat, np.cumsum(sizes)[:-1].tolist())
@@ -921,7 +921,7 @@ class Model:
             return lambda _: solid_tiles.advect_maps(xi, xip, vel, phi, limit, flags, cap, tile,
                                                      self.spacing, dt, advect=self._advect)
 
-        return lax.switch(level, [tiled(c) for c in caps] + [dense], None)
+        return narrowband.switch(level, [tiled(c) for c in caps] + [dense], None)
 
     def conserve_fluid_mass(self, rho_f, wf_old, rho_new, phi_new):
         """``rho_new`` shifted so that the fluid's mass ``sum(w_f rho_f)`` is the one before

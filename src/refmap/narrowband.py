@@ -114,6 +114,25 @@ def tile_flags(mask, tile):
     return jnp.any(m.reshape(split), axis=tuple(range(1, 2 * nd, 2)))
 
 
+def switch(index, branches, *operands):
+    """``lax.switch(index, branches, *operands)`` with every branch under ``jax.checkpoint``.
+
+    For the capacity ladders (each rung a branch, the full grid the last).  In reverse
+    mode ``lax.switch`` keeps the residuals of *every* branch, not only the taken one's
+    (JAX joins the branches' residual lists, and only residuals of the same shape share a
+    slot), so a ladder of two tile capacities and the full grid held all three branches'
+    intermediates through a step's backward pass.  Under ``jax.checkpoint`` a branch keeps
+    only its operands, shared by all, and the taken branch is run again in the backward
+    pass.  Measured (circle, 128^2, binomial checkpointing with 4 snapshots): the gradient's
+    memory 24.31 -> 21.56 MiB (4.48x -> 3.98x the forward run), its time +1.4 %.  The
+    forward pass is unchanged: without a derivative the checkpoint is inlined as it
+    stands (``prevent_cse=False`` puts no barrier in)."""
+    wrapped = [jax.checkpoint(b, prevent_cse=False) for b in branches]
+    if len(wrapped) == 2:
+        return lax.cond(index == 0, wrapped[0], wrapped[1], *operands)
+    return lax.switch(index, wrapped, *operands)
+
+
 def pad_high(a, shape, fill, crop: int = 0):
     """``a`` without its first ``crop`` entries along each of its last ``len(shape)`` axes,
     then padded with ``fill`` (or cut) at their high end to ``shape``: one pass."""
