@@ -168,3 +168,46 @@ def test_gradient_through_solve_matches_finite_differences(solver):
     assert abs(g - fd) < 1e-7 * max(1.0, abs(fd))
     # forward mode agrees too
     assert abs(float(jax.jvp(f, (th,), (1.0,))[1]) - fd) < 1e-7 * max(1.0, abs(fd))
+
+
+@pytest.mark.parametrize("solver", ["spd", "general"])
+def test_first_iterate_saves_iterations_and_keeps_the_answer(solver):
+    """A first iterate ``x0`` (the implicit viscosity's warm start): the solve stops at the
+    same residual bound ``rtol |b|`` whatever x0, so the answer is the cold one within the
+    tolerance; a guess with 1e-3 relative error saves iterations, the exact solution
+    needs none, and the derivatives (which start from zero) are the cold ones."""
+    n = 9
+    A0, _, (rho, kx, ky) = _diffusion(n, 4)
+    if solver == "spd":
+        A, iterate, solve = A0, cg, solve_spd
+    else:
+
+        def A(x):
+            return A0(x) + 0.8 * (x - jnp.roll(x, 1, 0))
+
+        iterate, solve = bicgstab, solve_general
+    b = jnp.asarray(rng.standard_normal((n, n)))
+    exact, _ = iterate(A, b, rtol=1e-14, maxiter=1000)
+    rtol = 1e-8
+    x_cold, info_cold = iterate(A, b, rtol=rtol, maxiter=1000)
+    guess = exact * (1.0 + 1e-3 * jnp.asarray(rng.standard_normal((n, n))))
+    x_warm, info_warm = iterate(A, b, x0=guess, rtol=rtol, maxiter=1000)
+    assert bool(info_warm["converged"])
+    assert int(info_warm["iterations"]) < int(info_cold["iterations"])
+    scale = float(jnp.linalg.norm(exact))
+    # both within the bound's worth of the exact answer (the operator's inverse is O(1) here)
+    assert float(jnp.linalg.norm(x_warm - exact)) < 1e-6 * scale
+    assert float(jnp.linalg.norm(x_cold - exact)) < 1e-6 * scale
+    assert int(iterate(A, b, x0=exact, rtol=1e-8, maxiter=1000)[1]["iterations"]) == 0
+    # the differentiable wrapper: same value, same derivative
+    w = jnp.asarray(rng.standard_normal((n, n)))
+
+    def f(theta, x0):
+        x = solve(lambda z: A(z) * (1.0 + theta), b * jnp.cos(theta), rtol=1e-13, maxiter=1000, x0=x0)
+        return jnp.sum(w * x**2)
+
+    th = 0.2
+    assert abs(float(f(th, guess)) - float(f(th, None))) < 1e-9 * abs(float(f(th, None)))
+    g_cold, g_warm = float(jax.grad(f)(th, None)), float(jax.grad(f)(th, guess))
+    assert abs(g_warm - g_cold) < 1e-9 * abs(g_cold)
+    assert abs(float(jax.jvp(lambda t: f(t, guess), (th,), (1.0,))[1]) - g_cold) < 1e-8 * abs(g_cold)

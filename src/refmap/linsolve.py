@@ -83,17 +83,36 @@ def cg(matvec, b, precond=None, x0=None, rtol=1e-10, atol=0.0, maxiter=200):
     return x, dict(iterations=k, residual=res, relative_residual=rel, converged=res <= bound)
 
 
-def solve_spd(matvec, b, precond=None, rtol=1e-10, atol=0.0, maxiter=200):
+def _guessed(x0, b):
+    """The first iterate for the solve of ``b``: ``x0`` (no derivatives flow through it)
+    where it is given and shaped like ``b``, else None (start from zero)."""
+    if x0 is None or jnp.shape(x0) != jnp.shape(b):
+        return None
+    return jax.lax.stop_gradient(x0)
+
+
+def solve_spd(matvec, b, precond=None, rtol=1e-10, atol=0.0, maxiter=200, x0=None):
     """``x`` with ``matvec(x) = b`` for a symmetric positive definite linear ``matvec``, by
     :func:`cg`, differentiable by implicit differentiation (``custom_linear_solve``,
     symmetric): the derivative of x with respect to b, or to anything ``matvec`` closes
     over, is one more solve with the same operator.  ``precond`` must not depend on
-    traced quantities that need derivatives (it only speeds the solve up)."""
+    traced quantities that need derivatives (it only speeds the solve up).
+
+    ``x0``: a first iterate for the primal solve (a guess of x; it changes the answer
+    only within the tolerance, and only the number of iterations otherwise).  The
+    derivative solves start from zero: their right-hand sides are not b."""
 
     def solve(mv, rhs):
         return cg(mv, rhs, precond=precond, rtol=rtol, atol=atol, maxiter=maxiter)[0]
 
-    return jax.lax.custom_linear_solve(matvec, b, solve=solve, symmetric=True)
+    if x0 is None:
+        return jax.lax.custom_linear_solve(matvec, b, solve=solve, symmetric=True)
+    guess = _guessed(x0, b)
+
+    def solve_primal(mv, rhs):
+        return cg(mv, rhs, precond=precond, x0=guess, rtol=rtol, atol=atol, maxiter=maxiter)[0]
+
+    return jax.lax.custom_linear_solve(matvec, b, solve=solve_primal, transpose_solve=solve, symmetric=True)
 
 
 def bicgstab(matvec, b, precond=None, x0=None, rtol=1e-10, atol=0.0, maxiter=200):
@@ -137,17 +156,25 @@ def bicgstab(matvec, b, precond=None, x0=None, rtol=1e-10, atol=0.0, maxiter=200
     return x, dict(iterations=k, residual=res, converged=res <= bound)
 
 
-def solve_general(matvec, b, precond=None, rtol=1e-10, atol=0.0, maxiter=200):
+def solve_general(matvec, b, precond=None, rtol=1e-10, atol=0.0, maxiter=200, x0=None):
     """``x`` with ``matvec(x) = b`` for a general (nonsymmetric) nonsingular linear
     ``matvec`` by :func:`bicgstab`, differentiable by implicit differentiation
     (``custom_linear_solve``): reverse mode solves the transposed system (JAX transposes
     ``matvec``), again by BiCGSTAB.  ``precond`` should be symmetric (it is used for the
-    transposed system as well) and free of traced quantities that need derivatives."""
+    transposed system as well) and free of traced quantities that need derivatives.
+    ``x0``: a first iterate for the primal solve, as in :func:`solve_spd`."""
 
     def solve(mv, rhs):
         return bicgstab(mv, rhs, precond=precond, rtol=rtol, atol=atol, maxiter=maxiter)[0]
 
-    return jax.lax.custom_linear_solve(matvec, b, solve=solve, transpose_solve=solve)
+    guess = _guessed(x0, b)
+    if guess is None:
+        return jax.lax.custom_linear_solve(matvec, b, solve=solve, transpose_solve=solve)
+
+    def solve_primal(mv, rhs):
+        return bicgstab(mv, rhs, precond=precond, x0=guess, rtol=rtol, atol=atol, maxiter=maxiter)[0]
+
+    return jax.lax.custom_linear_solve(matvec, b, solve=solve_primal, transpose_solve=solve)
 
 
 # ---------------------------------------------------------------------- fast transforms

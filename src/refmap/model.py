@@ -977,11 +977,18 @@ class Model:
         return src - total * wf / jnp.maximum(jnp.sum(wf), 1e-300)
 
     # ------------------------------------------------------------------ the step
-    def step(self, state: State, params: Params, dt, return_pressure: bool = False):
+    def step(self, state: State, params: Params, dt, return_pressure: bool = False,
+             viscous_guess=None):
         """One step of size dt.  ``return_pressure`` (incompressible fluid only): return
         the projection's pressure (nx, ny) of this step instead of the new state (for
         output, :meth:`output_fields`; plain CG, not differentiable); ``"info"``: the
-        pressure and the CG solver's info (iterations, residual, converged)."""
+        pressure and the CG solver's info (iterations, residual, converged).
+
+        ``viscous_guess`` (implicit viscosity only; shaped like ``state.v``): a first
+        iterate for the viscous solve's increment ``v^{n+1} - v*``; the step then returns
+        ``(state, increment)``.  :meth:`advance` passes the increment extrapolated from
+        the last two steps, which saves iterations and changes the answer only within
+        ``Numerics.viscosity_rtol``."""
         g = self.grid
         sp = self.spacing
         nd = self.ndim
@@ -1013,8 +1020,16 @@ class Model:
         # stick's anchor -- grows rho_f exponentially inside the solid, where no fluid
         # pressure pushes back: the thesis's stick at 128^2 blew up at t ~ 9.)
         v_new = v + dt * acc
+        increment = None
         if implicit:
-            v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt)
+            v_star = v_new
+            v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt,
+                                                  guess=viscous_guess)
+            increment = v_new - v_star
+
+        def done(new_state):
+            return (new_state, increment) if viscous_guess is not None and implicit else new_state
+
         # the anchors' velocities come before anything that moves with the new velocity:
         # the projection (incompressible: their nodes keep them, correction weight
         # 1 - w_anchor, so the projected velocity is divergence-free with them) and the
@@ -1068,7 +1083,7 @@ class Model:
             rho_new = rho_f + dt * drho
 
         if self.n_solids == 0:
-            return state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new)
+            return done(state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new))
 
         # 1. reference-map advection inside each solid and the inner part of its band
         # with implicit viscosity the maps move with the updated velocity (symplectic Euler
@@ -1089,7 +1104,8 @@ class Model:
         xi_new = self.extrapolate(xi_new, phi_new)
         if n.fluid_mass == "conserved" and self.projection is None:
             rho_new = self.conserve_fluid_mass(rho_f, d["wf_n"], rho_new, phi_new)
-        return state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new, xi=xi_new, phi=phi_new)
+        return done(state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new, xi=xi_new,
+                                  phi=phi_new))
 
     # ------------------------------------------------------------------ loops
     def advance(self, state: State, params: Params, t_target, max_steps: int = 10**9,
@@ -1114,14 +1130,25 @@ class Model:
             s, k, ok, *_ = c
             return (s.t < t_target - 1e-12) & ok & (k < max_steps)
 
+        warm = self.implicit_viscosity is not None
+
         def body(c):
-            s, k, ok, dt_last, lim_last, dtmin, dtmax = c
+            s, k, ok, dt_last, lim_last, dtmin, dtmax, rates = c
             dt, lim = self.time_step(s, params)
             rem = t_target - s.t
             short = rem < dt * (1 + 1e-9)
             dt = jnp.where(short, rem, dt)
             lim = jnp.where(short, LIMIT_NAMES.index("output"), lim)
-            s2 = self.step(s, params, dt)
+            if warm:
+                # the viscous increment per unit time of the last two steps, extrapolated
+                # linearly to this one (only the last after the first step, nothing before):
+                # the solve's first iterate
+                q1, q0, dt1 = rates
+                slope = jnp.where(k >= 2, dt / jnp.where(dt1 > 0, dt1, 1.0), 0.0)
+                s2, inc = self.step(s, params, dt, viscous_guess=dt * (q1 + slope * (q1 - q0)))
+                rates = (inc / dt, q1, dt)
+            else:
+                s2 = self.step(s, params, dt)
             v2 = s2.v[0] ** 2 + s2.v[1] ** 2
             for a in range(2, self.ndim):
                 v2 = v2 + s2.v[a] ** 2
@@ -1132,11 +1159,12 @@ class Model:
             dt_rep = jnp.where(keep, dt_last, dt)
             lim_rep = jnp.where(keep, lim_last, lim)
             dtmin = jnp.where(short, dtmin, jnp.minimum(dtmin, dt))
-            return (s2, k + 1, ok2, dt_rep, lim_rep, dtmin, jnp.maximum(dtmax, dt))
+            return (s2, k + 1, ok2, dt_rep, lim_rep, dtmin, jnp.maximum(dtmax, dt), rates)
 
         z = jnp.asarray(0.0)
-        init = (state, jnp.asarray(0), jnp.asarray(True), z, jnp.asarray(0), jnp.asarray(jnp.inf), z)
-        s, k, ok, dt, lim, dtmin, dtmax = jax.lax.while_loop(cond, body, init)
+        rates = (jnp.zeros_like(state.v), jnp.zeros_like(state.v), z) if warm else ()
+        init = (state, jnp.asarray(0), jnp.asarray(True), z, jnp.asarray(0), jnp.asarray(jnp.inf), z, rates)
+        s, k, ok, dt, lim, dtmin, dtmax, _ = jax.lax.while_loop(cond, body, init)
         return s, dict(steps=k, ok=ok, dt=dt, limit=lim, dt_min=dtmin, dt_max=dtmax)
 
     def run_steps(self, state: State, params: Params, n_steps: int, dt=None):

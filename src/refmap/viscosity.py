@@ -189,12 +189,15 @@ class ImplicitViscosity:
         inv = 1.0 / jnp.stack(diag)
         return lambda r: r * inv
 
-    def solve(self, v_star, rho, wf_c, fluid, t_new, dt, return_info=False):
+    def solve(self, v_star, rho, wf_c, fluid, t_new, dt, return_info=False, guess=None):
         """``v^{n+1}`` from ``rho (v^{n+1} - v*) = dt f(v^{n+1})``, boundary data at t_new.
 
         Conjugate gradients where the operator is symmetric (both axes periodic), BiCGSTAB
         otherwise.  With ``return_info`` also the solver's dict(iterations, residual,
-        converged) (then not differentiable)."""
+        converged) (then not differentiable).  ``guess``: a first iterate for the increment
+        ``v^{n+1} - v*`` (:meth:`refmap.model.Model.advance` extrapolates it from the last
+        two steps); the solve stops at the same residual whatever the guess, so the answer
+        changes only within ``rtol`` and the iterations fall with a good guess."""
         A = self.operator(rho, wf_c, fluid, t_new, dt)
         rhs = dt * viscous_force(self.model, v_star, t_new, fluid, wf_c)
         P = self.preconditioner(rho, wf_c, fluid, dt)
@@ -203,9 +206,10 @@ class ImplicitViscosity:
         atol = 1e-14 * jax.lax.stop_gradient(jnp.sqrt(jnp.sum((rho[None] * v_star) ** 2)))
         kw = dict(precond=P, rtol=self.rtol, atol=atol, maxiter=self.maxiter)
         if return_info:
-            delta, info = (cg if self.symmetric else bicgstab)(A, rhs, **kw)
+            x0 = None if guess is None else jax.lax.stop_gradient(guess)
+            delta, info = (cg if self.symmetric else bicgstab)(A, rhs, x0=x0, **kw)
             return v_star + delta, info
-        delta = (solve_spd if self.symmetric else solve_general)(A, rhs, **kw)
+        delta = (solve_spd if self.symmetric else solve_general)(A, rhs, x0=guess, **kw)
         return v_star + delta
 
 
