@@ -381,7 +381,7 @@ def test_dt_fixed_warning_knows_the_implicit_limits():
 
 def test_advance_warm_starts_the_viscous_solve_within_its_tolerance():
     """``Model.advance`` starts each viscous solve from the increment extrapolated from the
-    last two steps (``step(..., viscous_guess=...)``).  The solve stops at the same
+    last two steps (``step(..., first_iterates=...)``).  The solve stops at the same
     residual bound either way, so the run equals a loop of cold ``step`` calls within the
     solver's tolerance: each step's increment may differ by about ``rtol`` of itself, so
     after N steps the velocity differs by less than ``N rtol`` of itself (rotor, 32^2,

@@ -978,17 +978,19 @@ class Model:
 
     # ------------------------------------------------------------------ the step
     def step(self, state: State, params: Params, dt, return_pressure: bool = False,
-             viscous_guess=None):
+             first_iterates=None):
         """One step of size dt.  ``return_pressure`` (incompressible fluid only): return
         the projection's pressure (nx, ny) of this step instead of the new state (for
         output, :meth:`output_fields`; plain CG, not differentiable); ``"info"``: the
         pressure and the CG solver's info (iterations, residual, converged).
 
-        ``viscous_guess`` (implicit viscosity only; shaped like ``state.v``): a first
-        iterate for the viscous solve's increment ``v^{n+1} - v*``; the step then returns
-        ``(state, increment)``.  :meth:`advance` passes the increment extrapolated from
-        the last two steps, which saves iterations and changes the answer only within
-        ``Numerics.viscosity_rtol``."""
+        ``first_iterates``: a dict of first iterates for the step's linear solves, keyed as
+        :meth:`solver_keys` (``"viscous"``: the implicit viscous solve's increment
+        ``v^{n+1} - v*``, shaped like ``state.v``; ``"pressure"``: the projection's
+        pressure, shaped like ``state.rho_f``); the step then returns ``(state,
+        solutions)`` with this step's solutions under the same keys.  :meth:`advance`
+        passes the solutions of the last two steps extrapolated, which saves iterations
+        and changes the answer only within the solvers' tolerances."""
         g = self.grid
         sp = self.spacing
         nd = self.ndim
@@ -1020,15 +1022,16 @@ class Model:
         # stick's anchor -- grows rho_f exponentially inside the solid, where no fluid
         # pressure pushes back: the thesis's stick at 128^2 blew up at t ~ 9.)
         v_new = v + dt * acc
-        increment = None
+        guesses = first_iterates if first_iterates is not None else {}
+        solutions = {}
         if implicit:
             v_star = v_new
             v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt,
-                                                  guess=viscous_guess)
-            increment = v_new - v_star
+                                                  guess=guesses.get("viscous"))
+            solutions["viscous"] = v_new - v_star
 
         def done(new_state):
-            return (new_state, increment) if viscous_guess is not None and implicit else new_state
+            return new_state if first_iterates is None else (new_state, solutions)
 
         # the anchors' velocities come before anything that moves with the new velocity:
         # the projection (incompressible: their nodes keep them, correction weight
@@ -1050,14 +1053,19 @@ class Model:
         if self.projection is not None:
             # incompressible: the fluid pressure is the projection's (rho_f stays rho0, so
             # the pressure lambda_f (rho_f / rho0 - 1) in the stress above is zero)
+            warm = first_iterates is not None and not return_pressure
             projected = self.projection.project(v_new, d["rho"], t + dt, dt,
                                                 weight=self._anchor_free,
                                                 source=self.volume_source(d, dt),
-                                                return_info=return_pressure)
+                                                return_info=return_pressure,
+                                                guess=guesses.get("pressure"),
+                                                return_solution=warm)
             if return_pressure == "info":
                 return projected[1], projected[2]
             if return_pressure:
                 return projected[1]
+            if warm:
+                projected, solutions["pressure"] = projected
             v_new = projected
             if implicit:
                 vq = v_new
@@ -1107,6 +1115,12 @@ class Model:
         return done(state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new, xi=xi_new,
                                   phi=phi_new))
 
+    def solver_keys(self) -> tuple:
+        """The step's linear solves that :meth:`advance` warm-starts: ``"viscous"`` with
+        implicit viscosity, ``"pressure"`` with the incompressible fluid."""
+        return (("viscous",) if self.implicit_viscosity is not None else ()) + (
+            ("pressure",) if self.projection is not None else ())
+
     # ------------------------------------------------------------------ loops
     def advance(self, state: State, params: Params, t_target, max_steps: int = 10**9,
                 speed_limit=jnp.inf):
@@ -1130,23 +1144,25 @@ class Model:
             s, k, ok, *_ = c
             return (s.t < t_target - 1e-12) & ok & (k < max_steps)
 
-        warm = self.implicit_viscosity is not None
+        keys = self.solver_keys()
 
         def body(c):
-            s, k, ok, dt_last, lim_last, dtmin, dtmax, rates = c
+            s, k, ok, dt_last, lim_last, dtmin, dtmax, history = c
             dt, lim = self.time_step(s, params)
             rem = t_target - s.t
             short = rem < dt * (1 + 1e-9)
             dt = jnp.where(short, rem, dt)
             lim = jnp.where(short, LIMIT_NAMES.index("output"), lim)
-            if warm:
-                # the viscous increment per unit time of the last two steps, extrapolated
-                # linearly to this one (only the last after the first step, nothing before):
-                # the solve's first iterate
-                q1, q0, dt1 = rates
+            if keys:
+                # each solve starts from its solution of the last two steps extrapolated
+                # linearly in time (after the first step only the last, before it zero);
+                # the viscous increment scales with dt, so it is carried per unit time
+                last, before, dt1 = history
                 slope = jnp.where(k >= 2, dt / jnp.where(dt1 > 0, dt1, 1.0), 0.0)
-                s2, inc = self.step(s, params, dt, viscous_guess=dt * (q1 + slope * (q1 - q0)))
-                rates = (inc / dt, q1, dt)
+                scale = {"viscous": dt, "pressure": 1.0}
+                guess = {key: scale[key] * (last[key] + slope * (last[key] - before[key])) for key in keys}
+                s2, solved = self.step(s, params, dt, first_iterates=guess)
+                history = ({key: solved[key] / scale[key] for key in keys}, last, dt)
             else:
                 s2 = self.step(s, params, dt)
             v2 = s2.v[0] ** 2 + s2.v[1] ** 2
@@ -1159,11 +1175,13 @@ class Model:
             dt_rep = jnp.where(keep, dt_last, dt)
             lim_rep = jnp.where(keep, lim_last, lim)
             dtmin = jnp.where(short, dtmin, jnp.minimum(dtmin, dt))
-            return (s2, k + 1, ok2, dt_rep, lim_rep, dtmin, jnp.maximum(dtmax, dt), rates)
+            return (s2, k + 1, ok2, dt_rep, lim_rep, dtmin, jnp.maximum(dtmax, dt), history)
 
         z = jnp.asarray(0.0)
-        rates = (jnp.zeros_like(state.v), jnp.zeros_like(state.v), z) if warm else ()
-        init = (state, jnp.asarray(0), jnp.asarray(True), z, jnp.asarray(0), jnp.asarray(jnp.inf), z, rates)
+        shapes = {"viscous": state.v, "pressure": state.rho_f}
+        zeros = {key: jnp.zeros_like(shapes[key]) for key in keys}
+        history = (zeros, zeros, z) if keys else ()
+        init = (state, jnp.asarray(0), jnp.asarray(True), z, jnp.asarray(0), jnp.asarray(jnp.inf), z, history)
         s, k, ok, dt, lim, dtmin, dtmax, _ = jax.lax.while_loop(cond, body, init)
         return s, dict(steps=k, ok=ok, dt=dt, limit=lim, dt_min=dtmin, dt_max=dtmax)
 

@@ -468,7 +468,8 @@ class Projection:
         return P
 
     # ------------------------------------------------------------------ the projection
-    def project(self, v_star, rho, t_new, dt, weight=None, return_info=False, source=None):
+    def project(self, v_star, rho, t_new, dt, weight=None, return_info=False, source=None,
+                guess=None, return_solution=False):
         """The divergence-free ``v = v* - dt W rho^-1 G p`` (edge data at t_new).
 
         ``weight`` (nx, ny), default 1: how much of the correction each node takes; the
@@ -477,7 +478,10 @@ class Projection:
         (nx, ny), default 0: the divergence to impose instead, ``D v = source`` (the solids'
         volume correction, :meth:`refmap.model.Model.volume_source`); without an outflow
         edge it must sum to zero (its mean is removed).  With ``return_info`` also
-        ``(p, info)`` (then not differentiable: plain CG)."""
+        ``(p, info)`` (then not differentiable: plain CG).  ``guess`` (nx, ny): a first
+        iterate for p (:meth:`refmap.model.Model.advance` extrapolates it from the last two
+        steps; the solve stops at the same residual, so the answer changes only within
+        ``rtol``); ``return_solution``: return ``(v, p)``."""
         v_b = self.prescribe(v_star, t_new)
         b = self.divergence(v_b, t_new)
         if source is not None:
@@ -497,13 +501,16 @@ class Projection:
         atol = 1e-14 * jax.lax.stop_gradient(jnp.sqrt(jnp.sum(v_b**2)) / (dt * self.grid.h))
         kw = dict(precond=P, rtol=self.rtol, atol=atol, maxiter=self.maxiter)
         if return_info:
-            p, info = cg(A, rhs, **kw)
+            x0 = None if guess is None else jax.lax.stop_gradient(guess)
+            p, info = cg(A, rhs, x0=x0, **kw)
         else:
-            p = solve_spd(A, rhs, **kw)
+            p = solve_spd(A, rhs, x0=guess, **kw)
         inv = 1.0 / rho if weight is None else weight / rho
         v = v_b + dt * self.BT(p) * inv[None]
         if return_info:
             return v, p, info
+        if return_solution:
+            return v, p
         return v
 
 
