@@ -143,9 +143,9 @@ def _rotor_projection_inputs(n, steps):
     def capture(s):
         orig = pr.project
 
-        def spy(v, rho, t, dt, weight=None, return_info=False, source=None):
+        def spy(v, rho, t, dt, weight=None, return_info=False, source=None, **kw):
             box.update(v=v, rho=rho, t=t, dt=dt, weight=weight, source=source)
-            return orig(v, rho, t, dt, weight=weight, return_info=return_info, source=source)
+            return orig(v, rho, t, dt, weight=weight, return_info=return_info, source=source, **kw)
 
         pr.project = spy
         try:
