@@ -83,12 +83,23 @@ def cg(matvec, b, precond=None, x0=None, rtol=1e-10, atol=0.0, maxiter=200):
     return x, dict(iterations=k, residual=res, relative_residual=rel, converged=res <= bound)
 
 
-def _guessed(x0, b):
-    """The first iterate for the solve of ``b``: ``x0`` (no derivatives flow through it)
-    where it is given and shaped like ``b``, else None (start from zero)."""
-    if x0 is None or jnp.shape(x0) != jnp.shape(b):
-        return None
-    return jax.lax.stop_gradient(x0)
+def _implicit_solve(iterate, matvec, b, x0, symmetric, **kw):
+    """``custom_linear_solve`` of ``matvec(x) = b`` by ``iterate`` (:func:`cg` or
+    :func:`bicgstab`, keywords ``kw``): the primal solve starts from ``x0`` (under
+    ``stop_gradient``; zero if None), the derivative solves from zero."""
+
+    def solve(mv, rhs):
+        return iterate(mv, rhs, **kw)[0]
+
+    primal = solve
+    if x0 is not None:
+        guess = jax.lax.stop_gradient(x0)
+
+        def primal(mv, rhs):
+            return iterate(mv, rhs, x0=guess, **kw)[0]
+
+    return jax.lax.custom_linear_solve(matvec, b, solve=primal, transpose_solve=solve,
+                                       symmetric=symmetric)
 
 
 def solve_spd(matvec, b, precond=None, rtol=1e-10, atol=0.0, maxiter=200, x0=None):
@@ -101,18 +112,8 @@ def solve_spd(matvec, b, precond=None, rtol=1e-10, atol=0.0, maxiter=200, x0=Non
     ``x0``: a first iterate for the primal solve (a guess of x; it changes the answer
     only within the tolerance, and only the number of iterations otherwise).  The
     derivative solves start from zero: their right-hand sides are not b."""
-
-    def solve(mv, rhs):
-        return cg(mv, rhs, precond=precond, rtol=rtol, atol=atol, maxiter=maxiter)[0]
-
-    if x0 is None:
-        return jax.lax.custom_linear_solve(matvec, b, solve=solve, symmetric=True)
-    guess = _guessed(x0, b)
-
-    def solve_primal(mv, rhs):
-        return cg(mv, rhs, precond=precond, x0=guess, rtol=rtol, atol=atol, maxiter=maxiter)[0]
-
-    return jax.lax.custom_linear_solve(matvec, b, solve=solve_primal, transpose_solve=solve, symmetric=True)
+    return _implicit_solve(cg, matvec, b, x0, True, precond=precond, rtol=rtol, atol=atol,
+                           maxiter=maxiter)
 
 
 def bicgstab(matvec, b, precond=None, x0=None, rtol=1e-10, atol=0.0, maxiter=200):
@@ -163,18 +164,8 @@ def solve_general(matvec, b, precond=None, rtol=1e-10, atol=0.0, maxiter=200, x0
     ``matvec``), again by BiCGSTAB.  ``precond`` should be symmetric (it is used for the
     transposed system as well) and free of traced quantities that need derivatives.
     ``x0``: a first iterate for the primal solve, as in :func:`solve_spd`."""
-
-    def solve(mv, rhs):
-        return bicgstab(mv, rhs, precond=precond, rtol=rtol, atol=atol, maxiter=maxiter)[0]
-
-    guess = _guessed(x0, b)
-    if guess is None:
-        return jax.lax.custom_linear_solve(matvec, b, solve=solve, transpose_solve=solve)
-
-    def solve_primal(mv, rhs):
-        return bicgstab(mv, rhs, precond=precond, x0=guess, rtol=rtol, atol=atol, maxiter=maxiter)[0]
-
-    return jax.lax.custom_linear_solve(matvec, b, solve=solve_primal, transpose_solve=solve)
+    return _implicit_solve(bicgstab, matvec, b, x0, False, precond=precond, rtol=rtol, atol=atol,
+                           maxiter=maxiter)
 
 
 # ---------------------------------------------------------------------- fast transforms

@@ -501,8 +501,7 @@ class Projection:
         atol = 1e-14 * jax.lax.stop_gradient(jnp.sqrt(jnp.sum(v_b**2)) / (dt * self.grid.h))
         kw = dict(precond=P, rtol=self.rtol, atol=atol, maxiter=self.maxiter)
         if return_info:
-            x0 = None if guess is None else jax.lax.stop_gradient(guess)
-            p, info = cg(A, rhs, x0=x0, **kw)
+            p, info = cg(A, rhs, x0=guess, **kw)
         else:
             p = solve_spd(A, rhs, x0=guess, **kw)
         inv = 1.0 / rho if weight is None else weight / rho

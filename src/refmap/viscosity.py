@@ -206,8 +206,7 @@ class ImplicitViscosity:
         atol = 1e-14 * jax.lax.stop_gradient(jnp.sqrt(jnp.sum((rho[None] * v_star) ** 2)))
         kw = dict(precond=P, rtol=self.rtol, atol=atol, maxiter=self.maxiter)
         if return_info:
-            x0 = None if guess is None else jax.lax.stop_gradient(guess)
-            delta, info = (cg if self.symmetric else bicgstab)(A, rhs, x0=x0, **kw)
+            delta, info = (cg if self.symmetric else bicgstab)(A, rhs, x0=guess, **kw)
             return v_star + delta, info
         delta = (solve_spd if self.symmetric else solve_general)(A, rhs, x0=guess, **kw)
         return v_star + delta
