@@ -105,6 +105,8 @@ def save_checkpoint(run_dir, state, sim_info: dict) -> Path:
     arrays = {}
     for name in STATE_FIELDS:
         arrays[name] = np.asarray(getattr(state, name))
+    if getattr(state, "p", None) is not None:  # the incompressible fluid's pressure
+        arrays["p"] = np.asarray(state.p)
     info = dict(sim_info)
     info["format"] = FORMAT
     info["saved"] = datetime.now(UTC).isoformat(timespec="seconds")
@@ -154,6 +156,8 @@ def _read(path: Path):
             raise ValueError(f"{path} is not a refmap checkpoint (format {f.attrs.get('format')!r})")
         info = json.loads(f.attrs["sim_info"])
         arrays = {name: np.asarray(f["state"][name][()]) for name in STATE_FIELDS}
+        if "p" in f["state"]:  # written since 2026-12-06 for incompressible runs
+            arrays["p"] = np.asarray(f["state"]["p"][()])
     import jax.numpy as jnp
 
     state = State(**{k: jnp.asarray(v) for k, v in arrays.items()})

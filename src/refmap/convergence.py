@@ -176,7 +176,10 @@ def load_rung(path) -> dict:
 
 
 def _state_arrays(state) -> dict:
-    return {k: np.asarray(getattr(state, k)) for k in ("t", "step", "v", "rho_f", "xi", "phi")}
+    out = {k: np.asarray(getattr(state, k)) for k in ("t", "step", "v", "rho_f", "xi", "phi")}
+    if state.p is not None:  # the incompressible fluid's pressure (State.p)
+        out["p"] = np.asarray(state.p)
+    return out
 
 
 # what rungs written before the header named them were run with
@@ -252,6 +255,7 @@ def run_rung(
             rho_f=jnp.asarray(z["rho_f"]),
             xi=jnp.asarray(z["xi"]),
             phi=jnp.asarray(z["phi"]),
+            p=jnp.asarray(z["p"]) if "p" in z else None,
         )
         first, steps, wall0 = int(h["chunks_done"]), int(h["steps"]), float(h["wall_s"])
         log(

@@ -42,6 +42,12 @@ not given for an incompressible model it is computed with the model's own time s
 by the projection (no free velocity in its continuity rows), but those rows contribute
 nothing to a sum of ``G p`` over the region (a constant in ``B^T``'s row telescopes), so
 the region force is well defined.
+
+With ``Numerics.viscosity = "implicit"`` the step takes the viscous force at the new
+velocity; :func:`acceleration` evaluates it at the state's, so the balance holds once the
+flow is steady (where the two are equal), not step by step.  (The incompressible step
+carries the last pressure, ``State.p``, and solves for its increment; the pressure here is
+always the whole one, ``p^n + increment``.)
 """
 
 from __future__ import annotations

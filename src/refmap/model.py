@@ -289,6 +289,16 @@ class Model:
                     )
                 free = free * (1.0 - np.asarray(weight(grid)))
         self._anchor_free = None if np.all(free == 1.0) else free
+        # the implicit viscous solve's free weight: 1 - the velocity weights of the anchors
+        # that have one (region anchors).  Their nodes keep the anchor's velocity in the
+        # solve, as in the explicit step; anchors without a velocity weight (the pivot) are
+        # applied after the solve.
+        vfree = np.ones(grid.shape())
+        for s in self.solids:
+            weight = getattr(s.anchor, "velocity_weight", None)
+            if weight is not None and self.implicit_viscosity is not None:
+                vfree = vfree * (1.0 - np.asarray(weight(grid)))
+        self._viscous_free = None if np.all(vfree == 1.0) else vfree
         if initial_velocity is not None:  # node values (d, nx, ny[, nz]), see initial_state
             v0 = np.asarray(initial_velocity, dtype=np.float64)
             if v0.shape != (d,) + grid.shape():
@@ -645,6 +655,7 @@ class Model:
             rho_f=rho_f,
             xi=xi,
             phi=phi,
+            p=jnp.zeros(shape, dtype=jnp.float64) if self.projection is not None else None,
         )
 
     def default_params(self, fluid: FluidParams | None = None, gravity=None) -> Params:
@@ -1022,12 +1033,38 @@ class Model:
         # stick's anchor -- grows rho_f exponentially inside the solid, where no fluid
         # pressure pushes back: the thesis's stick at 128^2 blew up at t ~ 9.)
         v_new = v + dt * acc
+        # incremental projection: the predictor carries the last step's pressure gradient
+        # and the projection solves for the increment (zero at a steady state), so the
+        # implicit viscous solve acts on a velocity that already has it; the steady state
+        # then no longer depends on dt (method.md, "Incremental projection")
+        incremental = self.projection is not None and state.p is not None
+        if incremental:
+            inv = 1.0 / d["rho"] if self._anchor_free is None else self._anchor_free / d["rho"]
+            v_new = v_new + dt * self.projection.BT(state.p) * inv[None]
         guesses = first_iterates if first_iterates is not None else {}
         solutions = {}
+        xi0 = jnp.asarray(self._xi0)
         if implicit:
+            free = self._viscous_free
+            if self.projection is not None:
+                # the edges' normal components that the projection prescribes are held in
+                # the solve too: solved free, the solve moved them and the projection then
+                # reset them, so a steady state still depended on dt next to the edges
+                v_new = self.projection.prescribe(v_new, t + dt)
+                mask = jnp.asarray(self.projection.mask)
+                free = mask if free is None else mask * jnp.asarray(free)[None]
+            if self._viscous_free is not None:
+                # region anchors first: their nodes enter the solve with the held velocity
+                # and keep it (the free nodes' viscous force sees the body at rest; solved
+                # free, the held nodes' predictor velocity dt a, which is the body's load,
+                # leaked into the fluid's wall shear: CFD1's steady drag moved with dt)
+                for k, s in enumerate(self.solids):
+                    if getattr(s.anchor, "velocity_weight", None) is not None:
+                        v_new, _ = s.anchor.apply(g, v_new, state.xi[k], xi0[k])
             v_star = v_new
             v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt,
-                                                  guess=guesses.get("viscous"))
+                                                  guess=guesses.get("viscous"),
+                                                  free=free)
             solutions["viscous"] = v_new - v_star
 
         def done(new_state):
@@ -1040,7 +1077,6 @@ class Model:
         # with the held velocity, not with the free one the solve gives)
         anchors_first = implicit or self.projection is not None
         if anchors_first:
-            xi0 = jnp.asarray(self._xi0)
             for k, s in enumerate(self.solids):
                 if s.anchor is not None:
                     v_new, _ = s.anchor.apply(g, v_new, state.xi[k], xi0[k])
@@ -1059,13 +1095,18 @@ class Model:
                                                 source=self.volume_source(d, dt),
                                                 return_info=return_pressure,
                                                 guess=guesses.get("pressure"),
-                                                return_solution=warm)
+                                                return_solution=warm or incremental)
+            base = state.p if incremental else 0.0
             if return_pressure == "info":
-                return projected[1], projected[2]
+                return base + projected[1], projected[2]
             if return_pressure:
-                return projected[1]
-            if warm:
-                projected, solutions["pressure"] = projected
+                return base + projected[1]
+            if warm or incremental:
+                projected, increment = projected
+                if warm:
+                    solutions["pressure"] = increment
+                if incremental:
+                    p_new = state.p + increment
             v_new = projected
             if implicit:
                 vq = v_new
@@ -1090,6 +1131,8 @@ class Model:
             drho = self._advect(rp, vq, *sp) - rho_f * compression
             rho_new = rho_f + dt * drho
 
+        if incremental:
+            state = state.replace(p=p_new)
         if self.n_solids == 0:
             return done(state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new))
 

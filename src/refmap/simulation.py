@@ -452,6 +452,7 @@ class Simulation:
             warnings.warn(f"resuming {run_dir} with other versions than it was checkpointed with "
                           f"({'; '.join(changed)}): the continuation may differ from an uninterrupted run",
                           UserWarning, stacklevel=2)
+        state = _with_pressure(state, sim.model)
         sim._versions, sim._case_toml = now, case_toml(case)
         sim._resume_from = dict(info, state=state, frame_times=schedule)
         return sim
@@ -679,6 +680,8 @@ def _check_start_state(state, case: Case, model):
     n = model.n_solids
     nd, gshape = g.ndim, g.shape()
     want = {"v": (nd, *gshape), "rho_f": gshape, "xi": (n, nd, *gshape), "phi": (n, *gshape)}
+    if getattr(state, "p", None) is not None:  # an incompressible run's pressure
+        want["p"] = gshape
     arrays = {}
     for name, shape in want.items():
         try:
@@ -715,8 +718,23 @@ def _check_start_state(state, case: Case, model):
         warnings.warn(f"case {case.name!r}: the run starts from the given state, so "
                       f"case.initial_velocity ({case.initial_velocity!r}) is not used",
                       UserWarning, stacklevel=3)
-    return State(t=jnp.asarray(t, dtype=jnp.float64), step=jnp.asarray(int(step), dtype=jnp.int64),
-                 **{k: jnp.asarray(a, dtype=jnp.float64) for k, a in arrays.items()})
+    return _with_pressure(
+        State(t=jnp.asarray(t, dtype=jnp.float64), step=jnp.asarray(int(step), dtype=jnp.int64),
+              **{k: jnp.asarray(a, dtype=jnp.float64) for k, a in arrays.items()}), model)
+
+
+def _with_pressure(state, model):
+    """``state`` with the pressure the model's step carries: zeros for an incompressible
+    model whose state has none (a state made by hand, or a checkpoint written before
+    2026-12-06; the first step then solves for the whole pressure, as from
+    ``initial_state``), None for a compressible one."""
+    import jax.numpy as jnp
+
+    if model.projection is None:
+        return state.replace(p=None)
+    if state.p is None:
+        return state.replace(p=jnp.zeros(state.rho_f.shape, dtype=jnp.float64))
+    return state
 
 
 def run_scenario(name: str, n: int = 128, t_end: float | None = None, frames: int | None = None,

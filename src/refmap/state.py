@@ -52,6 +52,11 @@ class State:
     rho_f: jax.Array
     xi: jax.Array
     phi: jax.Array
+    #: the incompressible fluid's pressure of the last step (nx, ny[, nz]), which the next
+    #: step's predictor carries (incremental projection, :meth:`refmap.model.Model.step`);
+    #: None for the compressible fluid (its pressure is a function of rho_f) and for a
+    #: state made without it (the step is then the non-incremental projection)
+    p: jax.Array | None = None
 
     def replace(self, **kw) -> State:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -63,7 +68,7 @@ class State:
         return self.xi.shape[0]
 
 
-_register(State, ["t", "step", "v", "rho_f", "xi", "phi"])
+_register(State, ["t", "step", "v", "rho_f", "xi", "phi", "p"])
 
 
 @dataclass(frozen=True)

@@ -189,7 +189,8 @@ class ImplicitViscosity:
         inv = 1.0 / jnp.stack(diag)
         return lambda r: r * inv
 
-    def solve(self, v_star, rho, wf_c, fluid, t_new, dt, return_info=False, guess=None):
+    def solve(self, v_star, rho, wf_c, fluid, t_new, dt, return_info=False, guess=None,
+              free=None):
         """``v^{n+1}`` from ``rho (v^{n+1} - v*) = dt f(v^{n+1})``, boundary data at t_new.
 
         Conjugate gradients where the operator is symmetric (both axes periodic), BiCGSTAB
@@ -197,9 +198,27 @@ class ImplicitViscosity:
         converged) (then not differentiable).  ``guess``: a first iterate for the increment
         ``v^{n+1} - v*`` (:meth:`refmap.model.Model.advance` extrapolates it from the last
         two steps); the solve stops at the same residual whatever the guess, so the answer
-        changes only within ``rtol`` and the iterations fall with a good guess."""
+        changes only within ``rtol`` and the iterations fall with a good guess.
+
+        ``free``: a node weight (nx, ny[, nz]), or one per component (d, nx, ny[, nz]), 0 where
+        the velocity is held (an anchor's region, the normal components that an
+        incompressible fluid's projection prescribes on its edges: ``v*`` already holds the
+        held value there) and 1 elsewhere.
+        The increment is then 0 on the held nodes and the free nodes' viscous force sees the
+        held velocity, as the explicit step's does: the system is ``f A (f x) + (1 - f^2)
+        rho x = f b`` (symmetric where A is)."""
         A = self.operator(rho, wf_c, fluid, t_new, dt)
         rhs = dt * viscous_force(self.model, v_star, t_new, fluid, wf_c)
+        if free is not None:
+            f = jnp.asarray(free)
+            f = f if f.ndim == v_star.ndim else f[None]
+            A_full = A
+            rest = (1.0 - f * f) * rho[None]
+
+            def A(x):
+                return f * A_full(f * x) + rest * x
+
+            rhs = f * rhs
         P = self.preconditioner(rho, wf_c, fluid, dt)
         # an absolute floor (1e-14 of rho v*): a step whose viscous correction vanishes (a
         # fluid at rest) must not chase round-off
