@@ -115,8 +115,9 @@ def test_sharded_rotor_equals_one_device():
 
 
 def test_sharded_two_balls_equals_one_device():
-    # two solids, contact and a ramped inflow: 47 steps at 32^2 on 2 and 4 devices
-    _check(_run_devices([("two_balls", 32, 0.04)]), ["two_balls"])
+    # two solids, contact, a region anchor and a ramped inflow, with the implicit viscous
+    # solve (held nodes fixed in it): 35 steps at 32^2 on 2 and 4 devices
+    _check(_run_devices([("two_balls", 32, 0.45)]), ["two_balls"])
 
 
 def test_sharded_3d_equals_one_device():

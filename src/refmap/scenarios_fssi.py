@@ -17,7 +17,10 @@ Importing this module registers three scenarios with :func:`refmap.scenarios.sce
 Common parameters are the thesis's: domain [-2, 2]^2, compressible neo-Hookean solids with
 G = kappa = 10 (density 1 unless stated), fluid rho_f0 = 1, lambda_f = 1, eta = 0.12, extra
 viscosity 0.02 (``settle`` excepted: lambda_f = 5); every scenario uses the default
-:class:`Contact` (walls included) and the energy-consistent fluid compression
+:class:`Contact` (walls included), implicit viscosity (``Numerics(viscosity="implicit")``:
+the explicit step's wave-damping limit, dt = 8.6e-4 at any n, is gone and the solids' wave
+limit binds, 3.8x longer at 128^2 and 7.5x at 64^2; docs/fssi.md, "Implicit viscosity in
+the FSSI scenarios") and the energy-consistent fluid compression
 (``Numerics(compression="corner")``): with the thesis's centred one, a one-node velocity
 jet in the fluid film between two pressed bodies pumped the film's density without bound
 (``two_balls`` at 96^2: rho_f 12 at t = 9, 118 at t = 12, broken at t ~ 14).
@@ -44,6 +47,11 @@ from refmap.state import FluidParams, Numerics
 __all__ = ["two_balls", "ball_stick", "settle", "suspension", "suspension_discs", "SETTLE_BALLS"]
 
 
+#: every FSSI scenario: energy-consistent compression (the film between pressed bodies) and
+#: implicit viscosity (a step set by the solids' wave speed, not the explicit damping limit)
+_NUMERICS = Numerics(compression="corner", viscosity="implicit")
+
+
 def _law(rho0: float = 1.0):
     return NeoHookean(G=10.0, kappa=10.0, rho0=rho0)
 
@@ -60,7 +68,8 @@ def two_balls(n: int = 128) -> Case:
     # eta U / R) are small next to G = 10, and a much faster flow is transonic in this
     # fluid (sound speed 1).
     # Measured with the energy-consistent compression (the thesis's centred one let the
-    # film between the balls pump its density and broke the 96^2 run at t ~ 14): at 128^2
+    # film between the balls pump its density and broke the 96^2 run at t ~ 14) and the
+    # explicit viscous step (the implicit one follows its paths within 0.02 h): at 128^2
     # contact from t ~ 2.7, gap 0.045 (1.4 cells) from t = 4 to t = 20 under a contact
     # pressure of 0.2-0.3, no overlap, J in [0.93, 1.03]; at 64^2 gap 0.09 (1.4 cells),
     # and the mobile ball slowly slides off sideways (frictionless; centroid y -0.07 by
@@ -79,7 +88,7 @@ def two_balls(n: int = 128) -> Case:
         solids=(fixed, mobile),
         boundary=Boundary(left=(flow,), right=(flow,), bottom="slip", top="slip"),
         fluid=FluidParams(),
-        numerics=Numerics(compression="corner"),
+        numerics=_NUMERICS,
         t_end=20.0,
         frames=40,
         description=DESCRIPTIONS["two_balls"],
@@ -100,7 +109,8 @@ def ball_stick(n: int = 128) -> Case:
     # about two cells short of the stick at 64^2, so it pushes the stick only through the
     # fluid film; with density 2 it reaches it, the contact pressure acts (closest gap 1.1
     # cells), the top of the stick is pushed 0.43 sideways, springs back and throws the
-    # ball off (measured at 64^2: ball centre x -0.3 -> 0.20 at t = 2.5 -> -0.14 at t = 6,
+    # ball off (measured at 64^2 with the explicit viscous step, which the implicit one
+    # follows within 0.06 h: ball centre x -0.3 -> 0.20 at t = 2.5 -> -0.14 at t = 6,
     # y 0.5 -> -0.15 at t = 6).
     stick = Solid(
         shape=Capsule(center=(0.6, -0.5), half_length=0.95, radius=0.25, angle=math.pi / 2),
@@ -117,7 +127,7 @@ def ball_stick(n: int = 128) -> Case:
         solids=(stick, ball),
         boundary=Boundary(),
         fluid=FluidParams(),
-        numerics=Numerics(compression="corner"),
+        numerics=_NUMERICS,
         gravity=(0.0, -0.2),
         t_end=12.0,
         frames=60,
@@ -172,14 +182,14 @@ def _settling_box(name: str, n: int, solids, t_end: float, frames: int) -> Case:
     held these cases at a 5-11x shorter step than the solids' wave (5.8x at 64^2, 11x at
     300^2, growing with n); at 64^2 the two modes' centroids agree within 0.02 h and the
     kinetic energy within 3 % (settle to t = 8, 16 suspension discs to t = 4;
-    docs/fssi.md, "Implicit viscosity in the settling box")."""
+    docs/fssi.md, "Implicit viscosity in the FSSI scenarios")."""
     return Case(
         name=name,
         grid=Grid(n, n, -2.0, 2.0, -2.0, 2.0),
         solids=solids,
         boundary=Boundary(),
         fluid=FluidParams(lambda_f=5.0),
-        numerics=Numerics(compression="corner", viscosity="implicit"),
+        numerics=_NUMERICS,
         gravity=(0.0, -0.5),
         t_end=t_end,
         frames=frames,
