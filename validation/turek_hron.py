@@ -1,4 +1,4 @@
-"""Turek & Hron (2006) flag behind a cylinder: CSM1, CSM2, CFD1 and FSI1 (VALIDATION.md §5).
+"""Turek & Hron (2006) flag behind a cylinder: CSM1, CSM2, CSM3, CFD1, CFD2 and FSI1 (VALIDATION.md §5).
 
 One command per case (results as JSON + CSV history in ``--out``, default /work/runs/th)::
 
@@ -97,13 +97,25 @@ GRAV = 2.0
 REFERENCE = {
     "csm1": dict(ux=-7.18767e-3, uy=-66.1023e-3),
     "csm2": dict(ux=-0.469000e-3, uy=-16.9739e-3),
+    # CSM3 (the CSM1 flag released straight under g = 2, no damping): mean +- amplitude of
+    # u_x(A) and u_y(A) [m] and their frequency [1/s], Turek & Hron (2006), finest level as
+    # commonly quoted (a 6468-dof row gives -14.279 +- 14.280 and -63.541 +- 65.094 at the
+    # same frequency: 0.1 % apart); "uy" is the lowest point, for the box below the flag
+    "csm3": dict(
+        ux_mean=-14.305e-3,
+        ux_amp=14.305e-3,
+        uy_mean=-63.607e-3,
+        uy_amp=65.160e-3,
+        freq=1.0995,
+        uy=-128.767e-3,
+    ),
     "cfd1": dict(drag=14.2929, lift=1.11905),
     # CFD2 (Ubar = 1, Re 100): Turek & Hron (2006), table "CFD2", as quoted in
     # /work/shared/VALIDATION.md (drag 136.700, lift 10.5343)
     "cfd2": dict(drag=136.700, lift=10.5343),
     "fsi1": dict(ux=2.270493e-5, uy=8.208773e-4, drag=14.29426, lift=0.7637460),
 }
-MU_S = {"csm1": 0.5e6, "csm2": 2.0e6, "fsi1": 0.5e6, "cfd1": 0.5e6, "cfd2": 0.5e6}
+MU_S = {"csm1": 0.5e6, "csm2": 2.0e6, "csm3": 0.5e6, "fsi1": 0.5e6, "cfd1": 0.5e6, "cfd2": 0.5e6}
 UBAR = {"cfd1": 0.2, "cfd2": 1.0, "fsi1": 0.2}
 
 DEFAULT_OUT = Path("/work/runs/th")
@@ -210,12 +222,16 @@ def csm_tag(
     blur_width: float = 2.0,
     held_density: bool = False,
     compression: str = "centred",
+    rho_f: float | None = None,
     **_fluid_and_damping,
 ) -> str:
     """File stem of a CSM run: the thesis's blend (erf, 2 h) and compression carry no
     suffix, so the runs made before these became options keep their names (the fluid and
-    damping settings never named the runs)."""
+    damping settings never named the runs, except a CSM3 fluid density other than its
+    default, which changes the answer through the added mass)."""
     tag = f"{case}_nt{nt}"
+    if case == "csm3" and rho_f is not None and rho_f != csm_fluid_density(case):
+        tag += f"_rhof{rho_f:g}"
     if (blend_kernel, blur_width) != ("erf", 2.0):
         tag += f"_{blend_kernel}{blur_width:g}"
     if compression != "centred":
@@ -223,10 +239,20 @@ def csm_tag(
     return tag + ("_held" if held_density else "")
 
 
+def csm_fluid_density(case: str) -> float:
+    """The light fluid round the CSM flag: 100 (10 % of the solid) for the static cases,
+    where it only slows the approach to rest; 1 for CSM3, whose frequency the fluid's
+    added mass lowers (a flat plate of chord L moving across itself carries
+    rho_f pi L^2 / 4 per unit span: 1.4 times the flag's own mass at rho_f = 100, 1.4 % at
+    rho_f = 1).  With the compact sine kernels a fluid that light blows up
+    (docs/validation_turek_hron.md, "CSM3"); they need --rho-f."""
+    return 1.0 if case == "csm3" else 100.0
+
+
 def make_csm(
     case: str,
     nt: int,
-    rho_f: float = 100.0,
+    rho_f: float | None = None,
     gamma_factor: float = 3.0,
     damp_all: bool = False,
     blend_kernel: str = "erf",
@@ -237,7 +263,12 @@ def make_csm(
     """Model, params and settings of CSM1/CSM2 with ``nt`` cells across the flag, blended
     with ``blend_kernel`` of width ``blur_width`` cells (:mod:`refmap.blend`);
     ``held_density`` extends the fluid density into the clamped cylinder
-    (:class:`HeldDensityModel`); ``compression`` is the fluid's (``Numerics.compression``)."""
+    (:class:`HeldDensityModel`); ``compression`` is the fluid's (``Numerics.compression``).
+    CSM3 (the transient) has no mass damping (``gamma_factor`` is ignored): only the solid
+    viscosity that the explicit step needs, whose damping of the first bending mode is
+    ~omega eta_s / E ~ 1e-4 per radian at 4 cells."""
+    if rho_f is None:
+        rho_f = csm_fluid_density(case)
     mu = MU_S[case]
     h = THICK / nt
     c_l = longitudinal_speed(mu)
@@ -264,7 +295,7 @@ def make_csm(
     stiffening = bending_factor(blend_kernel, blur_width, nt)
     damp = SolidDamping(
         eta=solid_viscosity(c_l, h),
-        gamma=gamma_factor * omega * math.sqrt(stiffening),
+        gamma=0.0 if case == "csm3" else gamma_factor * omega * math.sqrt(stiffening),
         damp_all=damp_all,
         gravity=(0.0, -GRAV),
         zeta=zeta,
@@ -327,11 +358,16 @@ def run_csm(
     verbose: bool = True,
     **settings,
 ):
-    """Run CSM1/2 until the tip is at rest; returns the result dict (also written to out).
+    """Run CSM1/2 until the tip is at rest, or CSM3 (the transient) to ``t_max`` (default
+    three periods of the reference and a tenth, sampled every 5 ms); returns the result
+    dict (also written to out).
     ``settings``: the keywords of :func:`make_csm` (fluid, damping, blend, compression)."""
     model, params, info = make_csm(case, nt, **settings)
+    dynamic = case == "csm3"
     if t_max is None:
-        t_max = 12.0 / info["omega1"]
+        t_max = 3.1 / REFERENCE["csm3"]["freq"] if dynamic else 12.0 / info["omega1"]
+    if dynamic:
+        chunk = min(chunk, 0.005)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tag = csm_tag(case, nt, **settings)
@@ -381,6 +417,8 @@ def run_csm(
             )
         if not ok:
             break
+        if dynamic:
+            continue
         # at rest: u_y(A) varied by less than tol |u_y| over the last 1 / omega1
         back = [hh for hh in hist if hh[0] >= t - 1.0 / info["omega1"] - 1e-9]
         if t > 6.0 / info["omega1"] and len(back) > 2:
@@ -391,6 +429,8 @@ def run_csm(
             break
     f.close()
     save_state(out / f"{tag}_state.npz", state)
+    if dynamic:
+        return summarize_csm3(nt, out, ok=ok, **settings)
     return summarize_csm(case, nt, out, ok=ok, tol=tol, **settings)
 
 
@@ -462,6 +502,81 @@ def summarize_csm(
     return result
 
 
+def oscillation(t, u):
+    """Mean, amplitude and frequency of a sampled oscillation ``u(t)``: its extrema found
+    as the vertices of parabolas through each sampled local extremum and its two
+    neighbours; the frequency from the mean spacing of the successive minima and maxima
+    (one per period each), the mean and amplitude from the last complete period (its last
+    maximum and minimum).  Needs at least two minima or two maxima."""
+    t, u = np.asarray(t, float), np.asarray(u, float)
+    lows, highs = [], []
+    for k in range(1, len(u) - 1):
+        if (u[k] < u[k - 1] and u[k] <= u[k + 1]) or (u[k] > u[k - 1] and u[k] >= u[k + 1]):
+            a, b, c = u[k - 1], u[k], u[k + 1]
+            dt = t[k + 1] - t[k]
+            den = a - 2 * b + c
+            x = 0.5 * (a - c) / den if den != 0 else 0.0  # vertex offset in samples
+            ext = (t[k] + x * dt, b - 0.25 * (a - c) * x)
+            (lows if den > 0 else highs).append(ext)
+    periods = [q[1][0] - q[0][0] for q in (lows, highs) for q in zip(q[:-1], q[1:], strict=True)]
+    if not periods:
+        raise ValueError("oscillation: fewer than two minima and two maxima in the history")
+    freq = 1.0 / float(np.mean(periods))
+    hi, lo = highs[-1][1] if highs else float(u.max()), lows[-1][1] if lows else float(u.min())
+    return dict(
+        mean=0.5 * (hi + lo),
+        amp=0.5 * (hi - lo),
+        freq=freq,
+        n_min=len(lows),
+        n_max=len(highs),
+        period_spread=float(np.ptp(periods)) if periods else 0.0,
+    )
+
+
+def summarize_csm3(nt: int, out=DEFAULT_OUT, ok: bool = True, **settings):
+    """Result dict of a CSM3 run from its CSV history: mean, amplitude and frequency of
+    u_x(A) and u_y(A) (:func:`oscillation`), against the reference."""
+    _, _, info = make_csm("csm3", nt, **settings)
+    out = Path(out)
+    tag = csm_tag("csm3", nt, **settings)
+    with open(out / f"{tag}.csv") as f:
+        rows = np.array([[float(x) for x in r] for r in list(csv.reader(f))[1:]])
+    t = np.concatenate([[0.0], rows[:, 0]])
+    ref = REFERENCE["csm3"]
+    result = dict(
+        info,
+        t=float(rows[-1, 0]),
+        steps=int(rows[-1, 5]),
+        ok=ok,
+        wall_s=float(rows[-1, 6]),
+        vmax_solid=float(rows[-1, 4]),
+    )
+    for q, col in (("ux", 1), ("uy", 2)):
+        if not ok:  # blown up: its last samples are not an oscillation of the flag
+            result[f"{q}_error"] = "the run blew up"
+            continue
+        try:
+            osc = oscillation(t, np.concatenate([[0.0], rows[:, col]]))
+        except ValueError as e:  # blown up or stopped before two periods: no answer
+            result[f"{q}_error"] = str(e)
+            continue
+        result.update(
+            {
+                f"{q}_mean": osc["mean"],
+                f"{q}_amp": osc["amp"],
+                f"{q}_freq": osc["freq"],
+                f"{q}_periods": osc["n_min"] + osc["n_max"] - 2,
+            }
+        )
+        for k in ("mean", "amp"):
+            result[f"ref_{q}_{k}"] = ref[f"{q}_{k}"]
+            result[f"err_{q}_{k}"] = (osc[k] - ref[f"{q}_{k}"]) / abs(ref[f"{q}_{k}"])
+        result[f"ref_{q}_freq"] = ref["freq"]
+        result[f"err_{q}_freq"] = (osc["freq"] - ref["freq"]) / ref["freq"]
+    (out / f"{tag}.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
 class HeldDensityModel(Model):
     """Model whose fluid density on the anchor's held nodes is extended from the free ones.
 
@@ -521,14 +636,16 @@ def channel_dt(h, c_f, nu_long, safety=0.7):
     return safety * min(2.0 * nu_long / (nu_long**2 * K + c_f**2), h / (c_f + 0.3))
 
 
-def incompressible_dt(h, rho_f, eta, ubar, safety=0.5):
+def incompressible_dt(h, rho_f, eta, ubar, safety=0.5, viscous_limit=True):
     """Step of the incompressible channel: ``safety * min(h^2 rho / (4 eta), h / U)`` with
-    U = 2 x 1.5 Ubar, twice the peak inflow speed (a bound on the speed round the body)."""
-    return safety * min(h * h * rho_f / (4.0 * eta), h / (3.0 * ubar))
+    U = 2 x 1.5 Ubar, twice the peak inflow speed (a bound on the speed round the body);
+    without the viscous limit (implicit viscosity) ``safety * h / U``."""
+    conv = h / (3.0 * ubar)
+    return safety * (min(h * h * rho_f / (4.0 * eta), conv) if viscous_limit else conv)
 
 
 def make_incompressible_channel(
-    ny: int, ubar: float = 0.2, mu_f: float = 1.0, mirror: bool = False
+    ny: int, ubar: float = 0.2, mu_f: float = 1.0, mirror: bool = False, viscosity="explicit"
 ):
     """Model and params of the channel with the rigid flag and an incompressible fluid
     (``Numerics(fluid_model="incompressible")``): rho_f = 1000 (constant: no
@@ -537,7 +654,10 @@ def make_incompressible_channel(
     ``mirror``: the body reflected about the channel's mid-line (centre y = 0.21), whose
     exact lift is minus the benchmark's; the grid's nodes are symmetric about the mid-line,
     so the held nodes are the mirror image too and lift + mirrored lift measures the
-    scheme's own up/down bias.
+    scheme's own up/down bias.  ``viscosity = "implicit"`` (``Numerics.viscosity``): the
+    step is then the convective bound alone (4x the viscous one at ny = 164).  The forces
+    evaluate the viscous stress at the state's velocity, which equals the implicit step's
+    once the flow is steady.
     """
     ax, bx, ay, by = CHANNEL
     h = (by - ay) / ny
@@ -547,7 +667,7 @@ def make_incompressible_channel(
     eta = 2.0 * mu_f
     # lambda_f is unused by the incompressible model (rho_f stays rho0)
     fluid = FluidParams(rho0=rho_f, lambda_f=rho_f * 4.0, eta=eta, extra_viscosity=0.0)
-    dt = incompressible_dt(h, rho_f, eta, ubar)
+    dt = incompressible_dt(h, rho_f, eta, ubar, viscous_limit=viscosity == "explicit")
     law = svk(MU_S["cfd1"], RHO_S)
     body = BODY
     if mirror:
@@ -560,11 +680,19 @@ def make_incompressible_channel(
         grid,
         (solid,),
         channel_boundary(ubar),
-        Numerics(fluid_model="incompressible", dt_fixed=dt),
+        Numerics(fluid_model="incompressible", dt_fixed=dt, viscosity=viscosity),
     )
     params = Params(fluid=fluid, laws=(law,), gravity=(0.0, 0.0))
     info = dict(
-        ny=ny, nx=nx, h=h, nt=THICK / h, dt=dt, ubar=ubar, fluid="incompressible", mirror=mirror
+        ny=ny,
+        nx=nx,
+        h=h,
+        nt=THICK / h,
+        dt=dt,
+        ubar=ubar,
+        fluid="incompressible",
+        mirror=mirror,
+        viscosity=viscosity,
     )
     return model, params, info
 
@@ -748,6 +876,7 @@ def run_cfd(
     out=DEFAULT_OUT,
     keep_state=True,
     mirror: bool = False,
+    viscosity: str = "explicit",
 ):
     """CFD1 / CFD2 (rigid flag) with the incompressible fluid; drag and lift averaged over
     the last ``avg`` seconds (no sound: the flow is steady, the range says how steady).
@@ -755,8 +884,11 @@ def run_cfd(
     the reference lift is then minus the benchmark's)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    model, params, info = make_incompressible_channel(ny, ubar=UBAR[case], mirror=mirror)
+    model, params, info = make_incompressible_channel(
+        ny, ubar=UBAR[case], mirror=mirror, viscosity=viscosity
+    )
     tag = f"{case}_ny{ny}_inc" + ("_mirror" if mirror else "")
+    tag += "_implicit" if viscosity == "implicit" else ""
     state, rows, steps, t0 = _run_logged(
         model, params, model.initial_state(params), t_end, chunk, tag, out, HEADER_INC, keep_state
     )
@@ -937,6 +1069,7 @@ def table(out=DEFAULT_OUT):
         qs = {
             "csm1": ("ux", "uy"),
             "csm2": ("ux", "uy"),
+            "csm3": ("ux_mean", "ux_amp", "ux_freq", "uy_mean", "uy_amp", "uy_freq"),
             "cfd1": ("drag", "lift"),
             "cfd2": ("drag", "lift"),
             "fsi1": ("ux", "uy", "drag", "lift"),
@@ -950,6 +1083,8 @@ def table(out=DEFAULT_OUT):
             if r.get("compression", "centred") != "centred":
                 res += f", {r['compression']} compression"
         for q in qs:
+            if q not in r:  # a CSM3 run that ended before two periods
+                continue
             lines.append(
                 f"| {r['case'].upper()} | {res} | {q} | {r[q]:.5g} | {r['ref_' + q]:.6g} | "
                 f"{100 * r['err_' + q]:+.1f} % |"
@@ -968,7 +1103,30 @@ def plot(out=DEFAULT_OUT, img=Path(__file__).resolve().parents[1] / "docs" / "im
     out = Path(out)
     img = Path(img)
     img.mkdir(parents=True, exist_ok=True)
-    runs = sorted(out.glob("csm*_nt*.json"))
+    runs = [p for p in sorted(out.glob("csm*_nt*.json")) if not p.name.startswith("csm3")]
+    dyn = sorted(out.glob("csm3_nt*.json"))
+    if dyn:  # u_y(A) histories of the transient against the reference's band
+        ref = REFERENCE["csm3"]
+        fig, ax = plt.subplots(figsize=(8, 3.4))
+        for p in dyn:
+            r = json.loads(p.read_text())
+            with open(out / f"{p.stem}.csv") as f:
+                rows = np.array([[float(x) for x in q] for q in list(csv.reader(f))[1:]])
+            ax.plot(
+                rows[:, 0],
+                1e3 * rows[:, 2],
+                lw=1.0,
+                label=f"{r['nt']} cells, {r['blend']} {r['blur_width']:g}, rho_f {r['rho_f']:g}",
+            )
+        for y in (ref["uy_mean"] - ref["uy_amp"], ref["uy_mean"] + ref["uy_amp"]):
+            ax.axhline(1e3 * y, color="k", lw=0.6, ls="--")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("u_y(A) [mm]")
+        ax.set_title("CSM3: tip displacement (dashed: the reference's extremes)")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(img / "turek_hron_csm3.png", dpi=110)
+        plt.close(fig)
     if runs:
         fig, axs = plt.subplots(1, 2, figsize=(11, 3.8))
         for p in runs:
@@ -1058,7 +1216,9 @@ def plot(out=DEFAULT_OUT, img=Path(__file__).resolve().parents[1] / "docs" / "im
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("case", choices=["csm1", "csm2", "cfd1", "cfd2", "fsi1", "table", "plot"])
+    ap.add_argument(
+        "case", choices=["csm1", "csm2", "csm3", "cfd1", "cfd2", "fsi1", "table", "plot"]
+    )
     ap.add_argument("--nt", type=int, default=4, help="CSM: cells across the 0.02-thick flag")
     ap.add_argument("--ny", type=int, default=41, help="channel: cells across the 0.41 height")
     ap.add_argument(
@@ -1067,7 +1227,12 @@ def main(argv=None):
     ap.add_argument("--t-end", type=float, default=None)
     ap.add_argument("--t-rigid", type=float, default=8.0, help="FSI1: start from CFD1 at this time")
     ap.add_argument("--rho-scale", type=float, default=1.0, help="FSI1: flag inertia factor")
-    ap.add_argument("--rho-f", type=float, default=100.0, help="CSM: density of the light fluid")
+    ap.add_argument(
+        "--rho-f",
+        type=float,
+        default=None,
+        help="CSM: density of the light fluid (default 100; CSM3: 1; csm_fluid_density)",
+    )
     ap.add_argument(
         "--gamma-factor", type=float, default=3.0, help="CSM: damping rate / omega1_blur"
     )
@@ -1076,7 +1241,10 @@ def main(argv=None):
         "--blend", choices=["erf", "sine"], default="erf", help="CSM: blend kernel (Numerics.blend)"
     )
     ap.add_argument(
-        "--blur-width", type=float, default=2.0, help="CSM: kernel width in cells (Numerics.blur_width)"
+        "--blur-width",
+        type=float,
+        default=2.0,
+        help="CSM: kernel width in cells (Numerics.blur_width)",
     )
     ap.add_argument(
         "--held-density",
@@ -1103,10 +1271,17 @@ def main(argv=None):
     ap.add_argument(
         "--mirror", action="store_true", help="incompressible cfd: body mirrored (y -> H - y)"
     )
+    ap.add_argument(
+        "--viscosity",
+        choices=["explicit", "implicit"],
+        default="explicit",
+        help="incompressible cfd: viscous step (Numerics.viscosity); implicit drops the "
+        "viscous step limit",
+    )
     a = ap.parse_args(argv)
     global COMPRESSION
     COMPRESSION = a.compression
-    if a.case in ("csm1", "csm2"):
+    if a.case in ("csm1", "csm2", "csm3"):
         r = run_csm(
             a.case,
             a.nt,
@@ -1121,7 +1296,15 @@ def main(argv=None):
             compression=a.compression,
         )
     elif a.case in ("cfd1", "cfd2") and a.fluid == "incompressible":
-        r = run_cfd(a.case, a.ny, t_end=a.t_end or 8.0, avg=a.avg, out=a.out, mirror=a.mirror)
+        r = run_cfd(
+            a.case,
+            a.ny,
+            t_end=a.t_end or 8.0,
+            avg=a.avg,
+            out=a.out,
+            mirror=a.mirror,
+            viscosity=a.viscosity,
+        )
     elif a.case == "cfd2":
         raise SystemExit("cfd2 runs with --fluid incompressible only (Mach 0.5 at c_f = 2)")
     elif a.case == "cfd1":
