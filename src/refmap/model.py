@@ -1202,8 +1202,17 @@ class Model:
                 # the viscous increment scales with dt, so it is carried per unit time
                 last, before, dt1 = history
                 slope = jnp.where(k >= 2, dt / jnp.where(dt1 > 0, dt1, 1.0), 0.0)
-                scale = {"viscous": dt, "pressure": 1.0}
-                guess = {key: scale[key] * (last[key] + slope * (last[key] - before[key])) for key in keys}
+                # the incremental projection solves for the pressure's increment (State.p
+                # carries the pressure): a time difference, carried per unit time and
+                # continued at its last rate, which is the linear extrapolation of the
+                # pressure itself; extrapolating the increment linearly too made the
+                # guess worse than none (incompressible rotor 128^2: 23.6 against 15.3 ms
+                # per step)
+                incremental = s.p is not None
+                scale = {"viscous": dt, "pressure": dt if incremental else 1.0}
+                slopes = {"viscous": slope, "pressure": 0.0 if incremental else slope}
+                guess = {key: scale[key] * (last[key] + slopes[key] * (last[key] - before[key]))
+                         for key in keys}
                 s2, solved = self.step(s, params, dt, first_iterates=guess)
                 history = ({key: solved[key] / scale[key] for key in keys}, last, dt)
             else:
