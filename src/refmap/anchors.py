@@ -47,10 +47,6 @@ class RegionAnchor:
     region: object
 
     supports_3d = True
-    #: its velocity (zero) does not depend on the flow: the implicit viscous solve holds
-    #: its nodes (:meth:`refmap.model.Model.step`); a pivot's rotation is fitted from the
-    #: velocity, so it acts after the solve
-    fixed_velocity = True
 
     def mask(self, grid: Grid) -> np.ndarray:
         return self.weight(grid) > 0.5

@@ -290,13 +290,14 @@ class Model:
                 free = free * (1.0 - np.asarray(weight(grid)))
         self._anchor_free = None if np.all(free == 1.0) else free
         # the implicit viscous solve's free weight: 1 - the velocity weights of the anchors
-        # whose velocity does not depend on the flow (``fixed_velocity``: region anchors).
-        # Their nodes keep the anchor's velocity in the solve, as in the explicit step; the
-        # pivot, whose rotation is fitted from the velocity, is applied after the solve.
+        # that have one (region anchors).  Their nodes keep the anchor's velocity in the
+        # solve, as in the explicit step; anchors without a velocity weight (the pivot) are
+        # applied after the solve.
         vfree = np.ones(grid.shape())
         for s in self.solids:
-            if getattr(s.anchor, "fixed_velocity", False) and self.implicit_viscosity is not None:
-                vfree = vfree * (1.0 - np.asarray(s.anchor.velocity_weight(grid)))
+            weight = getattr(s.anchor, "velocity_weight", None)
+            if weight is not None and self.implicit_viscosity is not None:
+                vfree = vfree * (1.0 - np.asarray(weight(grid)))
         self._viscous_free = None if np.all(vfree == 1.0) else vfree
         if initial_velocity is not None:  # node values (d, nx, ny[, nz]), see initial_state
             v0 = np.asarray(initial_velocity, dtype=np.float64)
@@ -1058,7 +1059,7 @@ class Model:
                 # free, the held nodes' predictor velocity dt a, which is the body's load,
                 # leaked into the fluid's wall shear: CFD1's steady drag moved with dt)
                 for k, s in enumerate(self.solids):
-                    if getattr(s.anchor, "fixed_velocity", False):
+                    if getattr(s.anchor, "velocity_weight", None) is not None:
                         v_new, _ = s.anchor.apply(g, v_new, state.xi[k], xi0[k])
             v_star = v_new
             v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt,
