@@ -277,28 +277,31 @@ class Model:
         )
         if self.numerics.fluid_mass == "conserved":
             _check_closed(self.boundary)
-        free = np.ones(grid.shape())  # the projection's correction weight: 1 - anchor weights
-        for s in self.solids:
-            if s.anchor is not None and self.projection is not None:
-                weight = getattr(s.anchor, "velocity_weight", None)
-                if weight is None:
-                    raise ValueError(
-                        f"solid {s.name!r}: fluid_model 'incompressible' needs the anchor's "
-                        f"velocity_weight(grid) (the nodes it holds); {type(s.anchor).__name__} "
-                        "has none"
-                    )
-                free = free * (1.0 - np.asarray(weight(grid)))
-        self._anchor_free = None if np.all(free == 1.0) else free
-        # the implicit viscous solve's free weight: 1 - the velocity weights of the anchors
-        # that have one (region anchors).  Their nodes keep the anchor's velocity in the
-        # solve, as in the explicit step; anchors without a velocity weight (the pivot) are
-        # applied after the solve.
-        vfree = np.ones(grid.shape())
+        # 1 - the velocity weights of the anchors that have one (region anchors, the pivot's
+        # ramp): the projection's correction weight (incompressible: every anchor needs
+        # one) and the implicit viscous solve's free weight (their nodes enter the solve
+        # with the anchor's velocity and keep it, as in the explicit step; anchors without
+        # a weight act after the solve)
+        free = np.ones(grid.shape())
         for s in self.solids:
             weight = getattr(s.anchor, "velocity_weight", None)
-            if weight is not None and self.implicit_viscosity is not None:
-                vfree = vfree * (1.0 - np.asarray(weight(grid)))
-        self._viscous_free = None if np.all(vfree == 1.0) else vfree
+            if s.anchor is not None and weight is None and self.projection is not None:
+                raise ValueError(
+                    f"solid {s.name!r}: fluid_model 'incompressible' needs the anchor's "
+                    f"velocity_weight(grid) (the nodes it holds); {type(s.anchor).__name__} "
+                    "has none"
+                )
+            if weight is not None:
+                free = free * (1.0 - np.asarray(weight(grid)))
+        held = not np.all(free == 1.0)
+        self._anchor_free = free if held and self.projection is not None else None
+        self._viscous_free = None  # per node, or per component with the projection's mask
+        if self.implicit_viscosity is not None and (held or self.projection is not None):
+            # the edges' normal components that the projection prescribes are held in the
+            # solve too (set by Projection.prescribe before it)
+            self._viscous_free = (free if self.projection is None
+                                  else np.asarray(self.projection.mask) * free[None])
+        self._anchors_in_solve = held and self.implicit_viscosity is not None
         if initial_velocity is not None:  # node values (d, nx, ny[, nz]), see initial_state
             v0 = np.asarray(initial_velocity, dtype=np.float64)
             if v0.shape != (d,) + grid.shape():
@@ -1039,21 +1042,17 @@ class Model:
         # then no longer depends on dt (method.md, "Incremental projection")
         incremental = self.projection is not None and state.p is not None
         if incremental:
-            inv = 1.0 / d["rho"] if self._anchor_free is None else self._anchor_free / d["rho"]
-            v_new = v_new + dt * self.projection.BT(state.p) * inv[None]
+            v_new = self.projection.correct(v_new, state.p, d["rho"], dt, self._anchor_free)
         guesses = first_iterates if first_iterates is not None else {}
         solutions = {}
         xi0 = jnp.asarray(self._xi0)
         if implicit:
-            free = self._viscous_free
             if self.projection is not None:
                 # the edges' normal components that the projection prescribes are held in
                 # the solve too: solved free, the solve moved them and the projection then
                 # reset them, so a steady state still depended on dt next to the edges
                 v_new = self.projection.prescribe(v_new, t + dt)
-                mask = jnp.asarray(self.projection.mask)
-                free = mask if free is None else mask * jnp.asarray(free)[None]
-            if self._viscous_free is not None:
+            if self._anchors_in_solve:
                 # region anchors first: their nodes enter the solve with the held velocity
                 # and keep it (the free nodes' viscous force sees the body at rest; solved
                 # free, the held nodes' predictor velocity dt a, which is the body's load,
@@ -1064,7 +1063,7 @@ class Model:
             v_star = v_new
             v_new = self.implicit_viscosity.solve(v_new, d["rho"], d["wf_c"], fl, t + dt, dt,
                                                   guess=guesses.get("viscous"),
-                                                  free=free)
+                                                  free=self._viscous_free)
             solutions["viscous"] = v_new - v_star
 
         def done(new_state):

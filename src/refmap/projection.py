@@ -468,6 +468,12 @@ class Projection:
         return P
 
     # ------------------------------------------------------------------ the projection
+    def correct(self, v, p, rho, dt, weight=None):
+        """``v - dt W rho^-1 G p``: the pressure ``p``'s correction, weighted per node as in
+        :meth:`project` (the incremental step applies the last pressure's with it)."""
+        inv = 1.0 / rho if weight is None else weight / rho
+        return v + dt * self.BT(p) * inv[None]
+
     def project(self, v_star, rho, t_new, dt, weight=None, return_info=False, source=None,
                 guess=None, return_solution=False):
         """The divergence-free ``v = v* - dt W rho^-1 G p`` (edge data at t_new).
@@ -504,8 +510,7 @@ class Projection:
             p, info = cg(A, rhs, x0=guess, **kw)
         else:
             p = solve_spd(A, rhs, x0=guess, **kw)
-        inv = 1.0 / rho if weight is None else weight / rho
-        v = v_b + dt * self.BT(p) * inv[None]
+        v = self.correct(v_b, p, rho, dt, weight)
         if return_info:
             return v, p, info
         if return_solution:
