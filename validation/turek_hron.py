@@ -731,7 +731,9 @@ def make_channel(
     law = svk(mu, rho_s)
     c_l = longitudinal_speed(mu, rho_s)
     if rigid:
-        anchor = RegionAnchor(BODY)
+        # the body held whole: no free node may be advected into it (as in
+        # make_incompressible_channel; RegionAnchor.hold_entering)
+        anchor = RegionAnchor(BODY, hold_entering=True)
         eta_s = 0.0
     else:
         anchor = RegionAnchor(CYL)
