@@ -1,0 +1,180 @@
+"""Per-body windows: boxes of the grid that follow a body (issue 14; docs/design_windows.md).
+
+A window is a box of ``W = (Wx, Wy[, Wz])`` nodes whose lower corner ``origin`` (integer node
+indices, one per axis) sits on the grid.  This module holds the index work that every
+windowed phase shares; it knows nothing of reference maps or stresses:
+
+* :func:`placement`: where each body's window goes, from its level set: centred on the box
+  of the nodes with ``phi <= reach``, inside the grid on a non-periodic axis, anywhere
+  (wrapping round) on a periodic one, and whether that box with ``margin`` nodes to spare
+  fits;
+* :func:`gather`: the window's values of a grid field (a periodic axis wraps round);
+* :func:`scatter_add`: windows' values added into a grid field (overlapping windows add;
+  the exact transpose of :func:`gather`, tested by the adjoint identity);
+* :func:`shift`: a window's values moved to a new origin (a body that travelled), the
+  nodes that enter the window taking ``fill``;
+* :func:`to_grid`: a window's values on the whole grid, ``fill`` outside (output files).
+
+Every function works on the last ``d = len(W)`` axes of its arrays and on one window; use
+``jax.vmap`` over bodies (the origins ``(S, d)`` with them).  On a non-periodic axis a window
+never leaves the grid (:func:`placement` clips its origin to ``[0, n - W]``); on a periodic
+axis the indices are taken modulo the node count, so a body may straddle an edge or a
+corner.  Gathers and scatters use index arrays (XLA gather and scatter-add): simple and
+general; whether a sliced form is faster on a CPU is for the step that uses them to
+measure.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import lax
+
+#: nodes kept free between a body's band box and its window's edge by :func:`placement`
+MARGIN = 2
+
+
+def _axis_indices(origin_a, w: int, n: int):
+    """Node indices ``origin_a .. origin_a + w - 1`` along an axis of ``n`` nodes, modulo
+    ``n`` (only a periodic axis's window reaches past ``n``)."""
+    return (origin_a + jnp.arange(w, dtype=jnp.int32)) % n
+
+
+def _index(origin, window, shape):
+    """Open-mesh index arrays of the window's nodes (``jnp.ix_``-style, one per axis)."""
+    d = len(window)
+    idx = []
+    for a in range(d):
+        i = _axis_indices(origin[a], window[a], shape[a])
+        idx.append(i.reshape((1,) * a + (window[a],) + (1,) * (d - a - 1)))
+    return tuple(idx)
+
+
+def _check(window, shape, periodic):
+    if len(window) != len(shape) or len(periodic) != len(shape):
+        raise ValueError(
+            f"window {tuple(window)}, grid {tuple(shape)} and periodic {tuple(periodic)} "
+            "must have one entry per axis"
+        )
+    for a, (w, n) in enumerate(zip(window, shape, strict=True)):
+        if not (isinstance(w, int) and 1 <= w <= n):
+            raise ValueError(f"window size {w!r} along axis {a} must be an integer in [1, {n}]")
+
+
+def gather(field, origin, window, periodic):
+    """``field[..., window]``: the values of ``field`` (``(..., *grid)``) on the window at
+    ``origin`` (``(d,)`` int), shape ``(..., *window)``."""
+    window = tuple(window)
+    d = len(window)
+    shape = field.shape[-d:]
+    _check(window, shape, periodic)
+    return field[(Ellipsis,) + _index(origin, window, shape)]
+
+
+def scatter_add(grid_field, values, origin, periodic):
+    """``grid_field`` with ``values`` (``(..., *window)``) added on the window at ``origin``
+    (``(d,)`` int): the transpose of :func:`gather`."""
+    d = origin.shape[-1]
+    window = values.shape[-d:]
+    shape = grid_field.shape[-d:]
+    _check(window, shape, periodic)
+    return grid_field.at[(Ellipsis,) + _index(origin, window, shape)].add(values)
+
+
+def scatter_add_many(grid_field, values, origins, periodic):
+    """``grid_field`` (``(..., *grid)``) plus every window of ``values`` (``(S, ...,
+    *window)``, the leading axes after ``S`` those of ``grid_field``) at its origin
+    (``origins`` ``(S, d)``), overlapping windows adding up: one scatter-add."""
+    S, d = origins.shape
+    window = values.shape[-d:]
+    shape = grid_field.shape[-d:]
+    _check(window, shape, periodic)
+    lead = values.ndim - 1 - d
+    idx = []
+    for a in range(d):
+        i = (origins[:, a, None] + jnp.arange(window[a], dtype=jnp.int32)[None]) % shape[a]
+        idx.append(i.reshape((S,) + (1,) * a + (window[a],) + (1,) * (d - a - 1)))
+    # advanced indices on the last d axes: the result's axes are (..., S, *window)
+    return grid_field.at[(Ellipsis,) + tuple(idx)].add(jnp.moveaxis(values, 0, lead))
+
+
+def shift(values, old_origin, new_origin, shape, periodic, fill):
+    """The window ``values`` (``(..., *window)``, at ``old_origin``) moved to
+    ``new_origin`` on a grid of ``shape``: a node of the new window that the old one held
+    keeps its value, the others take ``fill`` (a scalar)."""
+    d = len(shape)
+    window = values.shape[-d:]
+    _check(window, shape, periodic)
+    out = values
+    for a in range(d):
+        n, w = shape[a], window[a]
+        delta = new_origin[a] - old_origin[a]
+        if periodic[a]:  # the shortest way round: delta in [-n/2, n/2)
+            delta = (delta + n // 2) % n - n // 2
+        src = jnp.arange(w, dtype=jnp.int32) + delta  # index into the old window
+        ok = (src >= 0) & (src < w)
+        ax = out.ndim - d + a
+        taken = jnp.take(out, jnp.clip(src, 0, w - 1), axis=ax)
+        mask = ok.reshape((1,) * ax + (w,) + (1,) * (out.ndim - ax - 1))
+        out = jnp.where(mask, taken, jnp.asarray(fill, out.dtype))
+    return out
+
+
+def to_grid(values, origin, shape, periodic, fill):
+    """The window ``values`` (``(..., *window)`` at ``origin``) on the whole grid of
+    ``shape``, ``fill`` elsewhere."""
+    d = len(shape)
+    window = values.shape[-d:]
+    _check(window, shape, periodic)
+    base = jnp.full(values.shape[:-d] + tuple(shape), fill, values.dtype)
+    return base.at[(Ellipsis,) + _index(origin, window, shape)].set(values)
+
+
+def _circular_box(line):
+    """(start, length) of the smallest circular box holding every True of ``line`` (n,):
+    the complement of its longest circular run of False.  (0, 0) when none is True."""
+    n = line.shape[0]
+    two = jnp.concatenate([line, line])
+    pos = jnp.arange(2 * n, dtype=jnp.int32)
+    last = lax.cummax(jnp.where(two, pos, -1), axis=0)
+    run = pos - last  # length of the run of False ending at pos (0 on a True)
+    tail = run[n:]  # runs ending in the second copy: at most n - 1 when any is True
+    end = jnp.argmax(tail).astype(jnp.int32)
+    gap = tail[end]
+    start = (end + 1) % n
+    length = n - gap
+    any_true = jnp.any(line)
+    return jnp.where(any_true, start, 0), jnp.where(any_true, length, 0)
+
+
+def placement(phi, reach, window, periodic, margin: int = MARGIN):
+    """``(origin (d,) int32, fits bool)`` of a window of size ``window`` for a body whose
+    level set is ``phi`` (``(*grid)``): centred on the box of its nodes with
+    ``phi <= reach``; on a non-periodic axis moved inside ``[0, n - W]``.  ``fits``: that box
+    with ``margin`` nodes to spare on each side lies in the window (on a non-periodic axis
+    the spare may be cut by a grid edge the window shares), and the body has such nodes.
+    Use ``jax.vmap`` over bodies."""
+    window = tuple(window)
+    shape = phi.shape
+    d = len(shape)
+    _check(window, shape, periodic)
+    m = phi <= reach
+    origin, fits = [], jnp.any(m)
+    for a in range(d):
+        n, w = shape[a], window[a]
+        line = jnp.any(m, axis=tuple(b for b in range(d) if b != a))
+        if periodic[a]:
+            start, length = _circular_box(line)
+            o = (start + length // 2 - w // 2) % n
+            # the box [start, start + length) lies in [o + margin, o + w - margin) mod n
+            lo = (start - o) % n
+            fits = fits & (lo >= margin) & (lo + length <= w - margin)
+        else:
+            idx = jnp.arange(n, dtype=jnp.int32)
+            lo = jnp.min(jnp.where(line, idx, n))
+            hi = jnp.max(jnp.where(line, idx, -1))
+            o = jnp.clip((lo + hi + 1) // 2 - w // 2, 0, n - w)
+            ok_lo = (lo - margin >= o) | (o == 0)
+            ok_hi = (hi + margin <= o + w - 1) | (o + w == n)
+            fits = fits & ok_lo & ok_hi
+        origin.append(jnp.asarray(o, jnp.int32))
+    return jnp.stack(origin), fits

@@ -1,0 +1,206 @@
+"""refmap.windows: the index work of per-body windows (docs/design_windows.md), against
+numpy's own slicing with wrapped indices, in 2D and 3D, on periodic and walled axes."""
+
+from __future__ import annotations
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import refmap  # noqa: F401  (float64)
+from refmap import windows
+
+
+def _np_index(origin, window, shape, periodic):
+    idx = []
+    for a, (o, w, n) in enumerate(zip(origin, window, shape, strict=True)):
+        i = np.arange(o, o + w)
+        if not periodic[a]:
+            assert i[-1] < n  # a walled axis's window stays on the grid
+        idx.append(i % n)
+    return np.ix_(*idx)
+
+
+CASES = [
+    ((12, 10), (5, 4), (True, True), [(0, 0), (9, 8), (11, 9), (3, 2)]),  # wraps x, y, corner
+    ((12, 10), (5, 4), (False, False), [(0, 0), (7, 6), (3, 2)]),  # walls: on the grid
+    ((12, 10), (12, 3), (True, False), [(5, 7), (0, 0)]),  # a window the whole period long
+    ((6, 7, 5), (3, 4, 2), (True, False, True), [(5, 3, 4), (0, 0, 0), (2, 1, 3)]),
+]
+
+
+@pytest.mark.parametrize(("shape", "window", "periodic", "origins"), CASES)
+def test_gather_and_to_grid_match_numpy(shape, window, periodic, origins):
+    rng = np.random.default_rng(1)
+    f = rng.normal(size=(2, *shape))
+    for o in origins:
+        got = windows.gather(jnp.asarray(f), jnp.asarray(o, jnp.int32), window, periodic)
+        want = f[(Ellipsis,) + _np_index(o, window, shape, periodic)]
+        np.testing.assert_array_equal(np.asarray(got), want)
+        full = windows.to_grid(got, jnp.asarray(o, jnp.int32), shape, periodic, -7.0)
+        ref = np.full_like(f, -7.0)
+        ref[(Ellipsis,) + _np_index(o, window, shape, periodic)] = want
+        np.testing.assert_array_equal(np.asarray(full), ref)
+
+
+@pytest.mark.parametrize(("shape", "window", "periodic", "origins"), CASES)
+def test_scatter_add_is_the_transpose_of_gather(shape, window, periodic, origins):
+    """<gather(f), w> = <f, scatter_add(0, w)> for every origin (the adjoint identity), and
+    several windows added at once equal adding them one by one (overlaps accumulate)."""
+    rng = np.random.default_rng(2)
+    f = jnp.asarray(rng.normal(size=(3, *shape)))
+    ws = jnp.asarray(rng.normal(size=(len(origins), 3, *window)))
+    o = jnp.asarray(origins, jnp.int32)
+    total = jnp.zeros_like(f)
+    for k in range(len(origins)):
+        lhs = jnp.vdot(windows.gather(f, o[k], window, periodic), ws[k])
+        placed = windows.scatter_add(jnp.zeros_like(f), ws[k], o[k], periodic)
+        assert float(lhs) == pytest.approx(float(jnp.vdot(f, placed)), rel=1e-13)
+        total = total + placed
+    many = windows.scatter_add_many(jnp.zeros_like(f), ws, o, periodic)
+    np.testing.assert_allclose(np.asarray(many), np.asarray(total), rtol=1e-14, atol=1e-14)
+    # and it is what jax.vjp of the gather gives
+    _, vjp = jax.vjp(lambda g: windows.gather(g, o[0], window, periodic), f)
+    np.testing.assert_allclose(np.asarray(vjp(ws[0])[0]),
+                               np.asarray(windows.scatter_add(jnp.zeros_like(f), ws[0], o[0], periodic)),
+                               rtol=0, atol=0)
+
+
+def _disc_phi(shape, h, center, r, periodic):
+    """Signed distance to a disc on a node grid of spacing h (periodic images on periodic
+    axes)."""
+    axes = [np.arange(n) * h for n in shape]
+    X = np.meshgrid(*axes, indexing="ij")
+    d2 = 0.0
+    for a, (x, c) in enumerate(zip(X, center, strict=True)):
+        dx = x - c
+        if periodic[a]:
+            L = shape[a] * h
+            dx = (dx + L / 2) % L - L / 2
+        d2 = d2 + dx * dx
+    return np.sqrt(d2) - r
+
+
+@pytest.mark.parametrize("periodic", [(True, True), (False, False), (True, False)])
+@pytest.mark.parametrize("center", [(0.5, 0.5), (0.02, 0.5), (0.98, 0.03), (0.6, 0.97)])
+def test_placement_holds_the_band_with_its_margin(periodic, center):
+    """A disc of radius 0.1 (reach 0.05) on a 50^2 grid of the unit box, anywhere,
+    straddling periodic edges and corners or touching walls: the window of 24 nodes holds
+    every node with phi <= reach, with the margin to spare except at a wall the window
+    shares; on a walled axis the window stays on the grid."""
+    shape, h, reach, window = (50, 50), 1.0 / 50, 0.05, (24, 24)
+    phi = _disc_phi(shape, h, center, 0.1, periodic)
+    origin, fits = windows.placement(jnp.asarray(phi), reach, window, periodic)
+    origin = np.asarray(origin)
+    assert bool(fits)
+    inside = np.zeros(shape, bool)
+    inside[_np_index(origin, window, shape, periodic)] = True
+    band = phi <= reach
+    assert not (band & ~inside).any()
+    for a in range(2):
+        if not periodic[a]:
+            assert 0 <= origin[a] <= shape[a] - window[a]
+    # the margin: the band's nodes shifted by +-MARGIN along each axis are still inside,
+    # unless that crosses a wall
+    m = windows.MARGIN
+    for a, s in itertools.product(range(2), (-m, m)):
+        moved = np.roll(band, s, axis=a)
+        if not periodic[a]:  # np.roll wraps: drop what crossed a wall
+            sl = [slice(None)] * 2
+            sl[a] = slice(0, s) if s > 0 else slice(s, None)
+            moved[tuple(sl)] = False
+        assert not (moved & ~inside).any(), (a, s)
+
+
+def test_placement_reports_a_body_too_large_or_absent():
+    shape, h = (40, 40), 1.0 / 40
+    phi = _disc_phi(shape, h, (0.5, 0.5), 0.3, (True, True))  # 24+ nodes across
+    _, fits = windows.placement(jnp.asarray(phi), 0.05, (20, 20), (True, True))
+    assert not bool(fits)
+    _, fits = windows.placement(jnp.full(shape, 1.0), 0.05, (20, 20), (True, True))
+    assert not bool(fits)  # no node within reach: nothing to hold
+    # vmapped over bodies, under jit
+    phis = jnp.stack([jnp.asarray(_disc_phi(shape, h, c, 0.1, (True, False)))
+                      for c in ((0.1, 0.5), (0.9, 0.9))])
+    o, f = jax.jit(jax.vmap(lambda p: windows.placement(p, 0.05, (20, 20), (True, False))))(phis)
+    assert o.shape == (2, 2) and bool(jnp.all(f))
+
+
+@pytest.mark.parametrize("periodic", [(True, True), (False, False)])
+def test_shift_keeps_the_overlap_and_fills_the_rest(periodic):
+    """Moving a window's values to a new origin equals gathering at the new origin where
+    the two windows overlap, and gives ``fill`` where the new window reaches nodes the old
+    one did not hold (periodic: the shortest way round, across the edge)."""
+    shape, window = (16, 14), (6, 5)
+    rng = np.random.default_rng(3)
+    f = jnp.asarray(rng.normal(size=(2, *shape)))
+    pairs = [((2, 3), (4, 2)), ((5, 5), (5, 5)), ((2, 3), (10, 9))]
+    if periodic[0]:
+        pairs.append(((14, 12), (1, 0)))  # across the corner
+    for old, new in pairs:
+        o, n = jnp.asarray(old, jnp.int32), jnp.asarray(new, jnp.int32)
+        moved = windows.shift(windows.gather(f, o, window, periodic), o, n, shape, periodic, 9.0)
+        direct = np.asarray(windows.gather(f, n, window, periodic))
+        held = np.zeros(shape, bool)
+        held[_np_index(old, window, shape, periodic)] = True
+        held_new = held[_np_index(new, window, shape, periodic)]
+        moved = np.asarray(moved)
+        np.testing.assert_array_equal(moved[:, held_new], direct[:, held_new])
+        assert np.all(moved[:, ~held_new] == 9.0)
+
+
+def test_bad_windows_are_refused():
+    f = jnp.zeros((8, 8))
+    with pytest.raises(ValueError, match="window size 9 along axis 0"):
+        windows.gather(f, jnp.zeros(2, jnp.int32), (9, 4), (False, False))
+    with pytest.raises(ValueError, match="one entry per axis"):
+        windows.gather(f, jnp.zeros(2, jnp.int32), (4, 4), (False,))
+
+
+def _brute_circular_box(line):
+    """The shortest circular interval [s, s + L) holding every True (smallest L, then
+    smallest s), by trying them all."""
+    n = len(line)
+    if not line.any():
+        return 0, 0
+    for L in range(1, n + 1):
+        for s in range(n):
+            covered = np.zeros(n, bool)
+            covered[(s + np.arange(L)) % n] = True
+            if not (line & ~covered).any():
+                return s, L
+    raise AssertionError
+
+
+def test_circular_box_is_the_shortest_covering_interval():
+    rng = np.random.default_rng(4)
+    lines = [np.zeros(9, bool), np.ones(9, bool)]
+    for n in (1, 2, 7, 12):
+        for p in (0.15, 0.4):
+            lines += [rng.random(n) < p for _ in range(20)]
+    for line in lines:
+        s, L = (int(x) for x in windows._circular_box(jnp.asarray(line)))
+        bs, bL = _brute_circular_box(line)
+        assert L == bL, (line, s, L, bs, bL)
+        covered = np.zeros(len(line), bool)
+        covered[(s + np.arange(L)) % len(line)] = True
+        assert not (line & ~covered).any(), (line, s, L)
+
+
+@pytest.mark.parametrize("periodic", [(True, True), (False, False)])
+def test_placement_with_a_tight_window(periodic):
+    """A window exactly the band's box plus the margin on each side fits, one node
+    smaller does not (a disc away from the walls; on periodic axes across the corner)."""
+    shape, h, reach = (50, 50), 1.0 / 50, 0.03
+    center = (0.99, 0.01) if periodic[0] else (0.5, 0.5)
+    phi = _disc_phi(shape, h, center, 0.1, periodic)
+    band = phi <= reach
+    extent = max(int(windows._circular_box(jnp.asarray(band.any(axis=1 - a)))[1]) for a in range(2))
+    tight = extent + 2 * windows.MARGIN
+    _, fits = windows.placement(jnp.asarray(phi), reach, (tight, tight), periodic)
+    assert bool(fits)
+    _, fits = windows.placement(jnp.asarray(phi), reach, (tight - 1, tight - 1), periodic)
+    assert not bool(fits)
