@@ -73,6 +73,7 @@ def gather(field, origin, window, periodic):
 def scatter_add(grid_field, values, origin, periodic):
     """``grid_field`` with ``values`` (``(..., *window)``) added on the window at ``origin``
     (``(d,)`` int): the transpose of :func:`gather`."""
+    origin = jnp.asarray(origin)
     d = origin.shape[-1]
     window = values.shape[-d:]
     shape = grid_field.shape[-d:]
@@ -84,6 +85,7 @@ def scatter_add_many(grid_field, values, origins, periodic):
     """``grid_field`` (``(..., *grid)``) plus every window of ``values`` (``(S, ...,
     *window)``, the leading axes after ``S`` those of ``grid_field``) at its origin
     (``origins`` ``(S, d)``), overlapping windows adding up: one scatter-add."""
+    origins = jnp.asarray(origins)
     S, d = origins.shape
     window = values.shape[-d:]
     shape = grid_field.shape[-d:]
