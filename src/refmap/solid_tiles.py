@@ -246,5 +246,83 @@ def mix(s_f, rho_f, A, Tc, B, Tn):
     return s_mix, rho, wf_c, wf_n
 
 
+
+def mixed_on_windows(s_f, rho_f, phip, dp, lows, spacing, origins, window, periodic, laws, rho0,
+                     stress_fn, h, numerics, ghost: int = 2):
+    """:func:`mix` of the solids' blend and stress contributions computed on one window per
+    solid (:mod:`refmap.windows`, docs/design_windows.md, landing 2) instead of on tiles.
+
+    ``phip`` (S, *padded) the level sets and ``dp`` (S, d, *padded) the maps minus the
+    node coordinates, both padded with ``ghost`` layers (``pad_linear`` and ``pad_affine``
+    minus ``padded_coords``: on a periodic axis ``xi - x`` wraps, the map itself jumps by
+    the period); ``lows`` the coordinates of node 0 per axis; ``origins`` (S, d) the windows'
+    first nodes and ``window`` their node counts: each solid's corners ``origin ..
+    origin + W`` and nodes ``origin .. origin + W`` are computed (the window read with one
+    node more below and two above), so every corner and node where the solid's fraction is
+    not zero must lie in its window: ``refmap.windows.placement`` with ``reach`` just below
+    :func:`cutoff` (``1 - H`` is exactly 0 from there on; a corner is computed when one of
+    its nodes is in the window).  On a periodic axis the window may wrap (``W + 1 <= n``); its map is
+    made continuous across the edge from the wrapped ``xi - x`` and the unwrapped
+    coordinates.  On a walled axis the window stays on the grid (``origin <= n - W``)."""
+    from refmap.windows import _check
+
+    nd = len(window)
+    S = origins.shape[0]
+    nshape = tuple(a - 2 * ghost for a in phip.shape[-nd:])
+    cshape = tuple(n + 1 for n in nshape)
+    _check(tuple(window), nshape, periodic)
+    for a in range(nd):
+        if periodic[a] and window[a] + 1 > nshape[a]:
+            raise ValueError(f"a window of {window[a]} nodes along periodic axis {a} needs "
+                             f"window + 1 <= {nshape[a]} nodes")
+    size = tuple(w + 3 for w in window)  # nodes origin - 1 .. origin + W + 1
+
+    def cut(f_k, origin):
+        idx = []
+        for a in range(nd):
+            node = origin[a] - 1 + jnp.arange(size[a], dtype=jnp.int32)
+            if periodic[a]:
+                node = node % nshape[a]
+            idx.append((node + ghost).reshape((1,) * a + (size[a],) + (1,) * (nd - a - 1)))
+        return f_k[(Ellipsis,) + tuple(idx)]
+
+    def coords(origin):
+        out = []
+        for a in range(nd):
+            node = origin[a] - 1 + jnp.arange(size[a], dtype=jnp.int32)
+            x = lows[a] + (node + 0.5) * spacing[a]
+            out.append(jnp.broadcast_to(x.reshape((1,) * a + (size[a],) + (1,) * (nd - a - 1)), size))
+        return jnp.stack(out)
+
+    phiw = jax.vmap(cut)(phip, origins)[:, None]  # (S, 1, *size): one "tile" per solid
+    xiw = (jax.vmap(cut)(dp, origins) + jax.vmap(coords)(origins))[:, None]
+    wc, wn = blend_contributions(phiw, rho0, h, numerics)  # (S, 1, C, W + 1, ...)
+    sig, drho = stress_contributions(phiw, xiw, laws, stress_fn, h, spacing, numerics)
+
+    def place(values, shape_out, corner):
+        """Sum (S, 1, C, W + 1, ...) into (C, *shape_out) at each solid's origin."""
+        C = values.shape[2]
+        idx = []
+        for a in range(nd):
+            i = origins[:, a, None] + jnp.arange(window[a] + 1, dtype=jnp.int32)[None]
+            if periodic[a]:
+                i = i % nshape[a]  # corner n is corner 0's copy, set below
+            idx.append(i.reshape((S,) + (1,) * a + (window[a] + 1,) + (1,) * (nd - a - 1)))
+        out = jnp.zeros((C,) + tuple(shape_out), values.dtype)
+        # indices past a walled edge (the node beyond the last one) are dropped
+        out = out.at[(slice(None),) + tuple(idx)].add(jnp.moveaxis(values[:, 0], 1, 0), mode="drop")
+        if corner:
+            for a in range(nd):
+                if periodic[a]:
+                    first = lax.index_in_dim(out, 0, axis=1 + a, keepdims=True)
+                    out = lax.dynamic_update_index_in_dim(out, first, nshape[a], axis=1 + a)
+        return out
+
+    Tc = place(wc, cshape, True)[0]
+    Bn, Tn = place(wn, nshape, False)
+    A = place(sig, cshape, True)
+    Bn = Bn + place(drho, nshape, False)[0]
+    return mix(s_f, rho_f, tuple(A), Tc, Bn, Tn)
+
 __all__ = ["ERF_ZERO", "Listed", "advect_maps", "blend_contributions", "cutoff", "gather",
-           "mix", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
+           "mix", "mixed_on_windows", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
