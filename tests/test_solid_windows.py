@@ -69,7 +69,7 @@ def test_mixed_fields_on_windows_equal_the_full_grid(name):
     assert bool(jnp.all(fits))
     rho0 = jnp.stack([jnp.asarray(law.rho0) for law in params.laws])
     dp2 = xip2 - jnp.asarray(bc.padded_coords(2))
-    lows = [float(np.asarray(x).min()) for x in model.grid.mesh("node")]
+    lows = model.grid.lows
     got = solid_tiles.mixed_on_windows(
         s_f, s.rho_f, phip2, dp2, lows, model.spacing, origins, W, periodic, params.laws, rho0,
         model_module._solid_stresses, h, n)
@@ -95,3 +95,55 @@ def test_a_window_too_small_is_seen():
     reach = solid_tiles.cutoff(n.blend, n.blur_width * h) * (1 - 1e-12)  # 1 - H is 0 from there
     _, fits = jax.vmap(lambda p: windows.placement(p, reach, (20, 20), model.bc.periodic))(s.phi)
     assert not bool(jnp.any(fits))
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_a_model_with_solid_windows_steps_as_the_default(name):
+    """``Numerics(solid_storage="window")``: the step with the mixed fields on windows
+    equals the default step (tiles or the whole grid) to round-off over 15 steps, and a
+    window too small for the bodies falls back on the whole grid with the same result."""
+    import dataclasses
+
+    boundary, centers, gravity = CASES[name]
+    base = _model(boundary, centers)
+    params = base.default_params(gravity=gravity)
+    win = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, solid_storage="window"))
+    assert win.solid_window is not None and base.solid_window is None
+    assert all(w < n for w, n in zip(win.solid_window, base.grid.shape(), strict=True))
+    small = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, solid_storage="window"))
+    small.solid_window = (12, 12)  # far less than a body's blend zone: every step falls back
+    out = []
+    for m in (base, win, small):
+        s = jax.jit(m.initial_state)(params)
+        X, Y = (jnp.asarray(a) for a in m.grid.mesh("node"))
+        q = jnp.pi / 2
+        s = s.replace(xi=s.xi + jnp.stack([0.04 * jnp.sin(q * Y) * jnp.cos(q * X), 0.03 * jnp.sin(q * X)])[None])
+        out.append(jax.jit(lambda s, m=m: m.run_steps(s, params, 15))(s))
+    a, b, c = out
+    for f in ("v", "rho_f", "xi", "phi"):
+        ref = np.asarray(getattr(a, f))
+        scale = max(float(np.max(np.abs(ref))), 1.0)
+        for other in (b, c):
+            np.testing.assert_allclose(np.asarray(getattr(other, f)), ref, rtol=0, atol=1e-11 * scale,
+                                       err_msg=f)
+    assert float(jnp.max(jnp.abs(a.v))) > 1e-3  # the bodies move
+
+
+def test_solid_storage_is_checked_and_in_case_files():
+    from refmap.casefile import case_from_dict
+
+    with pytest.raises(ValueError, match="numerics solid_storage must be 'grid' or 'window', got 'tiles'"):
+        Numerics(solid_storage="tiles")
+    import dataclasses
+    import tomllib
+
+    from refmap.casefile import case_to_toml
+    from refmap.scenarios import get_case
+
+    case = get_case("circle", 32)
+    case = case.replace(numerics=dataclasses.replace(case.numerics, solid_storage="window"))
+    text = case_to_toml(case)
+    assert 'solid_storage = "window"' in text
+    back = case_from_dict(tomllib.loads(text)).case
+    assert back.numerics.solid_storage == "window"
+    assert back.build()[0].solid_window is not None

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from refmap import blend, extrapolation, levelset, narrowband, solid_tiles
+from refmap import blend, extrapolation, levelset, narrowband, solid_tiles, windows
 from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
 from refmap.operators import (
@@ -79,6 +79,40 @@ BAND_WINDOW_SLACK = 8
 # the grid's (a tile's window of T + 2 nodes a side and the sum into the grid cost more per
 # node than the full-grid computation; docs/benchmarks.md, "Solids' stress on tiles")
 SOLID_TILE_FRACTION = 0.5
+#: nodes a solid's window (``Numerics.solid_storage = "window"``) holds beyond its
+#: blend's reach at t = 0 and the placement's margins: room to move and deform
+SOLID_WINDOW_SLACK = 8
+
+
+def _pack_mixed(s_mix, rho, wf_c, wf_n):
+    """The four mixed results of :meth:`Model.derived` in one vector: each branch of the
+    tiles' and windows' conditionals returns them so (XLA split a conditional with four
+    outputs into four, each redoing the part of the branch that its output needs; an
+    optimization barrier did not stop it)."""
+    return jnp.concatenate([a.reshape(-1) for a in (*s_mix, rho, wf_c, wf_n)])
+
+
+def _unpack_mixed(flat, n_comp: int, nshape):
+    """:func:`_pack_mixed` undone: ``(s_mix, rho, wf_c, wf_n)`` on a grid of ``nshape`` nodes."""
+    cshape = tuple(s + 1 for s in nshape)
+    sizes = [math.prod(cshape)] * n_comp + [math.prod(nshape), math.prod(cshape), math.prod(nshape)]
+    shapes = [cshape] * n_comp + [nshape, cshape, nshape]
+    parts = jnp.split(flat, np.cumsum(sizes)[:-1].tolist())
+    out = [p.reshape(sh) for p, sh in zip(parts, shapes, strict=True)]
+    return out[:n_comp], out[-3], out[-2], out[-1]
+
+
+def _box_length(line, periodic: bool) -> int:
+    """Nodes of the smallest box (circular on a periodic axis) holding every True of the
+    boolean ``line`` (host-side)."""
+    line = np.asarray(line, bool)
+    if not line.any():
+        return 0
+    idx = np.nonzero(line)[0]
+    if not periodic:
+        return int(idx[-1] - idx[0] + 1)
+    gaps = np.diff(np.concatenate([idx, [idx[0] + line.size]])) - 1  # False runs after each True
+    return int(line.size - gaps.max())
 # band_sweeps = "auto" in 2D: the full grid below this many nodes, whatever the fractions.
 # There a whole step takes a few ms either way, and the tiles' extra branches (the capacity
 # ladder) triple the compile time (64^2, 4 discs: 7 s -> 20 s for a step 10 % faster;
@@ -324,6 +358,7 @@ class Model:
             self.bc.glue(self._xi0 - np.stack(Xn), self._phi_t0 < 0)
         self.band_capacity = self._initial_band_capacity()
         self.solid_tiles = self._initial_solid_tiles()
+        self.solid_window = self._initial_solid_window()
 
     def _initial_solid_tiles(self):
         """``(tile, blend capacities, stress capacities)`` for computing each solid's
@@ -357,6 +392,32 @@ class Model:
         if n.band_sweeps == "auto" and (ladders[0][1] > SOLID_TILE_FRACTION * total or self._auto_too_small()):
             return None
         return tile, ladders[0], ladders[1]
+
+    def _initial_solid_window(self):
+        """``Numerics.solid_storage = "window"``: the static box (nodes per axis) in which
+        each solid's stress, blend weights and density are computed
+        (:func:`refmap.solid_tiles.mixed_on_windows`): the largest extent, over the solids
+        at t = 0, of the nodes within the blend's reach (:func:`refmap.solid_tiles.cutoff`),
+        plus ``2 * windows.MARGIN + SOLID_WINDOW_SLACK`` nodes for the body to move and
+        deform before the step falls back on the whole grid; at most the grid on a walled
+        axis and one node less than it on a periodic one.  None with ``"grid"`` or without
+        solids."""
+        n = self.numerics
+        if n.solid_storage != "window" or not self.solids:
+            return None
+        reach = solid_tiles.cutoff(n.blend, n.blur_width * self.h)
+        phi = np.minimum(self._phi_t0, n.phi_max * self.h)
+        ext = [0] * self.ndim
+        for k in range(self.n_solids):
+            m = phi[k] < reach
+            for a in range(self.ndim):
+                line = m.any(axis=tuple(b for b in range(self.ndim) if b != a))
+                ext[a] = max(ext[a], _box_length(line, self.bc.periodic[a]))
+        shape = self.grid.shape()
+        return tuple(
+            min(e + 2 * windows.MARGIN + SOLID_WINDOW_SLACK, m - 1 if p else m)
+            for e, m, p in zip(ext, shape, self.bc.periodic, strict=True)
+        )
 
     def _auto_too_small(self) -> bool:
         """``band_sweeps = "auto"``: a 2D grid too small for tiles to pay
@@ -808,7 +869,12 @@ class Model:
         phip, xip = phip2[core], xip2[core]
         f = self._solids_full(s_f, state.rho_f, state.phi, phip, xip, params)
         s_mix, rho, wf_c, wf_n = f.pop("mixed")
-        if self.solid_tiles is not None:
+        if self.solid_window is not None:
+            # the mixed fields from one window per solid (Numerics.solid_storage "window")
+            s_mix, rho, wf_c, wf_n = self._mixed_on_windows(
+                s_f, state.rho_f, phip2, xip2, params,
+                lambda: self._solids_full(s_f, state.rho_f, state.phi, phip2[core], xip2[core], params)["mixed"])
+        elif self.solid_tiles is not None:
             # the mixed fields from each solid's tiles (the per-solid fields stay the
             # full-grid ones, for diagnostics and output; inside the step nothing reads them
             # in the default configuration and XLA drops them)
@@ -855,6 +921,33 @@ class Model:
             valid=valid, sigma_s=sig, Hc=Hc, Hn=Hn, ws_c=ws_c, ws_n=ws_n, phic=phic,
         )
 
+    def _mixed_on_windows(self, s_f, rho_f, phip, xip, params, full):
+        """The mixed stress components, density and fluid fractions of :meth:`derived`
+        from one window per solid (:func:`refmap.solid_tiles.mixed_on_windows`, windows of
+        :attr:`solid_window` nodes placed on each solid's blend zone this step); ``full()``
+        (the same four on the whole grid) in a step where a solid's zone does not fit its
+        window.  ``phip``, ``xip``: the level sets and maps padded with two ghost layers."""
+        n = self.numerics
+        W = self.solid_window
+        periodic = self.bc.periodic
+        # 1 - H is exactly 0 from the cutoff on; which nodes: no derivative
+        reach = solid_tiles.cutoff(n.blend, n.blur_width * self.h) * (1.0 - 1e-12)
+        phi = lax.stop_gradient(phip[self._core(2)])
+        origins, fits = jax.vmap(lambda p: windows.placement(p, reach, W, periodic))(phi)
+        rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=rho_f.dtype) for law in params.laws])
+        dp = xip - jnp.asarray(self.bc.padded_coords(2))
+
+        def win(_):
+            return _pack_mixed(*solid_tiles.mixed_on_windows(
+                s_f, rho_f, phip, dp, self.grid.lows, self.spacing, origins, W, periodic,
+                params.laws, rho0, _solid_stresses, self.h, n))
+
+        def dense(_):
+            return _pack_mixed(*full())
+
+        flat = narrowband.switch(jnp.where(jnp.all(fits), 0, 1), [win, dense], None)
+        return _unpack_mixed(flat, len(s_f), self.grid.shape())
+
     def _mixed_on_tiles(self, s_f, rho_f, phip, xip, params, full):
         """The mixed stress components, density and fluid fractions of :meth:`derived`
         summed from each solid's tiles (:mod:`refmap.solid_tiles`); ``full()`` (the same
@@ -869,12 +962,6 @@ class Model:
         nshape = self.grid.shape()
         rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=rho_f.dtype) for law in params.laws])
 
-        # each branch returns its four results packed into one vector: XLA split the
-        # conditional with four outputs into four, each redoing the part of the branch
-        # that its output needs (an optimization barrier did not stop it)
-        def pack(s_mix, rho, wf_c, wf_n):
-            return jnp.concatenate([a.reshape(-1) for a in (*s_mix, rho, wf_c, wf_n)])
-
         def tiled(cap_b, cap_s):
             def run(_):
                 lb = solid_tiles.Listed(flags_b, cap_b)
@@ -888,21 +975,17 @@ class Model:
                 Bn, Tn = solid_tiles.scatter_add(wn, lb, tile, nshape)
                 A = solid_tiles.scatter_add(sig, ls, tile, cshape)
                 Bn = Bn + solid_tiles.scatter_add(drho, ls, tile, nshape)[0]
-                return pack(*solid_tiles.mix(s_f, rho_f, tuple(A), Tc, Bn, Tn))
+                return _pack_mixed(*solid_tiles.mix(s_f, rho_f, tuple(A), Tc, Bn, Tn))
             return run
 
         def dense(_):
-            return pack(*full())
+            return _pack_mixed(*full())
 
         # the first rung that holds every solid's tiles of both lists; past the last: full grid
         level = jnp.maximum(narrowband.ladder_level(flags_b, caps_b), narrowband.ladder_level(flags_s, caps_s))
         branches = [tiled(b, c) for b, c in zip(caps_b, caps_s, strict=True)] + [dense]
         flat = narrowband.switch(level, branches, None)
-        sizes = [math.prod(cshape)] * len(s_f) + [math.prod(nshape), math.prod(cshape), math.prod(nshape)]
-        shapes = [cshape] * len(s_f) + [nshape, cshape, nshape]
-        parts = jnp.split(flat, np.cumsum(sizes)[:-1].tolist())
-        out = [p.reshape(sh) for p, sh in zip(parts, shapes, strict=True)]
-        return out[:len(s_f)], out[-3], out[-2], out[-1]
+        return _unpack_mixed(flat, len(s_f), nshape)
 
     @property
     def _advect(self):

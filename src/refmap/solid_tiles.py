@@ -255,7 +255,7 @@ def mixed_on_windows(s_f, rho_f, phip, dp, lows, spacing, origins, window, perio
     ``phip`` (S, *padded) the level sets and ``dp`` (S, d, *padded) the maps minus the
     node coordinates, both padded with ``ghost`` layers (``pad_linear`` and ``pad_affine``
     minus ``padded_coords``: on a periodic axis ``xi - x`` wraps, the map itself jumps by
-    the period); ``lows`` the coordinates of node 0 per axis; ``origins`` (S, d) the windows'
+    the period); ``lows`` the box's low end per axis (``Grid.lows``; node i at ``low + (i + 1/2) h``); ``origins`` (S, d) the windows'
     first nodes and ``window`` their node counts: each solid's corners ``origin ..
     origin + W`` and nodes ``origin .. origin + W`` are computed (the window read with one
     node more below and two above), so every corner and node where the solid's fraction is

@@ -234,6 +234,15 @@ class Numerics:
     is shifted, in proportion to the fluid fraction, so that the fluid's mass sum(w_f rho_f)
     is what it was before the step (docs/method.md, "Known weaknesses", swelling item
     (d)); refused with an edge through which fluid can flow.
+
+    ``solid_storage`` (issue 14; docs/design_windows.md): ``"grid"`` (default) or
+    ``"window"``.  Today every solid's map and level set live on the whole grid either
+    way; with ``"window"`` the solids' stress, blend weights and density of each step are
+    computed on one box per solid that follows it (:func:`refmap.solid_tiles.mixed_on_windows`,
+    the box sized at t = 0, :meth:`refmap.model.Model._initial_solid_window`), instead of
+    on its tiles or the whole grid; a step in which a body has outgrown its box computes
+    them on the whole grid (same results).  The first step towards storing each solid in
+    its box.
     """
 
     blur_width: float = 2.0
@@ -268,6 +277,7 @@ class Numerics:
     pressure_preconditioner: str = "auto"
     volume_correction: float = 10.0
     fluid_mass: str = "advected"
+    solid_storage: str = "grid"
 
     def __post_init__(self):
         try:
@@ -282,6 +292,7 @@ class Numerics:
             "pressure_preconditioner": ("auto",) + PRECONDITIONERS,
             "band_force": ("local", "solid"),
             "fluid_mass": ("advected", "conserved"),
+            "solid_storage": ("grid", "window"),
         }
         for name, allowed in choices.items():
             value = getattr(self, name)
