@@ -242,7 +242,7 @@ class Numerics:
     the box sized at t = 0, :meth:`refmap.model.Model._initial_solid_window`), instead of
     on its tiles or the whole grid; a step in which a body has outgrown its box computes
     them on the whole grid (same results).  The first step towards storing each solid in
-    its box.
+    its box; tested in 2D only.
     """
 
     blur_width: float = 2.0
