@@ -68,10 +68,8 @@ def test_mixed_fields_on_windows_equal_the_full_grid(name):
     origins, fits = jax.vmap(lambda p: windows.placement(p, reach, W, periodic))(s.phi)
     assert bool(jnp.all(fits))
     rho0 = jnp.stack([jnp.asarray(law.rho0) for law in params.laws])
-    dp2 = xip2 - jnp.asarray(bc.padded_coords(2))
-    lows = model.grid.lows
     got = solid_tiles.mixed_on_windows(
-        s_f, s.rho_f, phip2, dp2, lows, model.spacing, origins, W, periodic, params.laws, rho0,
+        s_f, s.rho_f, phip2, xip2, model.spacing, origins, W, periodic, params.laws, rho0,
         model_module._solid_stresses, h, n)
     s_mix, rho, wf_c, wf_n = full
     g_mix, g_rho, g_wfc, g_wfn = got

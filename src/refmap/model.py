@@ -102,17 +102,6 @@ def _unpack_mixed(flat, n_comp: int, nshape):
     return out[:n_comp], out[-3], out[-2], out[-1]
 
 
-def _box_length(line, periodic: bool) -> int:
-    """Nodes of the smallest box (circular on a periodic axis) holding every True of the
-    boolean ``line`` (host-side)."""
-    line = np.asarray(line, bool)
-    if not line.any():
-        return 0
-    idx = np.nonzero(line)[0]
-    if not periodic:
-        return int(idx[-1] - idx[0] + 1)
-    gaps = np.diff(np.concatenate([idx, [idx[0] + line.size]])) - 1  # False runs after each True
-    return int(line.size - gaps.max())
 # band_sweeps = "auto" in 2D: the full grid below this many nodes, whatever the fractions.
 # There a whole step takes a few ms either way, and the tiles' extra branches (the capacity
 # ladder) triple the compile time (64^2, 4 discs: 7 s -> 20 s for a step 10 % faster;
@@ -406,13 +395,14 @@ class Model:
         if n.solid_storage != "window" or not self.solids:
             return None
         reach = solid_tiles.cutoff(n.blend, n.blur_width * self.h)
-        phi = np.minimum(self._phi_t0, n.phi_max * self.h)
         ext = [0] * self.ndim
         for k in range(self.n_solids):
-            m = phi[k] < reach
+            m = self._phi_t0[k] < reach
             for a in range(self.ndim):
                 line = m.any(axis=tuple(b for b in range(self.ndim) if b != a))
-                ext[a] = max(ext[a], _box_length(line, self.bc.periodic[a]))
+                with jax.ensure_compile_time_eval():
+                    length = windows.axis_box(jnp.asarray(line), self.bc.periodic[a])[1]
+                ext[a] = max(ext[a], int(length))
         shape = self.grid.shape()
         return tuple(
             min(e + 2 * windows.MARGIN + SOLID_WINDOW_SLACK, m - 1 if p else m)
@@ -935,11 +925,10 @@ class Model:
         phi = lax.stop_gradient(phip[self._core(2)])
         origins, fits = jax.vmap(lambda p: windows.placement(p, reach, W, periodic))(phi)
         rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=rho_f.dtype) for law in params.laws])
-        dp = xip - jnp.asarray(self.bc.padded_coords(2))
 
         def win(_):
             return _pack_mixed(*solid_tiles.mixed_on_windows(
-                s_f, rho_f, phip, dp, self.grid.lows, self.spacing, origins, W, periodic,
+                s_f, rho_f, phip, xip, self.spacing, origins, W, periodic,
                 params.laws, rho0, _solid_stresses, self.h, n))
 
         def dense(_):

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from refmap import blend, narrowband
+from refmap import blend, narrowband, windows
 from refmap.operators import corner_average, grad_corner, node_average
 
 #: erf(x) is exactly 1.0 in float64 for x >= 5.9216 (checked in the tests): 1 - H = 0 there
@@ -247,70 +247,52 @@ def mix(s_f, rho_f, A, Tc, B, Tn):
 
 
 
-def mixed_on_windows(s_f, rho_f, phip, dp, lows, spacing, origins, window, periodic, laws, rho0,
+def mixed_on_windows(s_f, rho_f, phip, xip, spacing, origins, window, periodic, laws, rho0,
                      stress_fn, h, numerics, ghost: int = 2):
     """:func:`mix` of the solids' blend and stress contributions computed on one window per
     solid (:mod:`refmap.windows`, docs/design_windows.md, landing 2) instead of on tiles.
 
-    ``phip`` (S, *padded) the level sets and ``dp`` (S, d, *padded) the maps minus the
-    node coordinates, both padded with ``ghost`` layers (``pad_linear`` and ``pad_affine``
-    minus ``padded_coords``: on a periodic axis ``xi - x`` wraps, the map itself jumps by
-    the period); ``lows`` the box's low end per axis (``Grid.lows``; node i at ``low + (i + 1/2) h``); ``origins`` (S, d) the windows'
+    ``phip`` (S, *padded) the level sets and ``xip`` (S, d, *padded) the maps, both padded
+    with ``ghost`` layers (``pad_linear``, ``pad_affine``); ``origins`` (S, d) the windows'
     first nodes and ``window`` their node counts: each solid's corners ``origin ..
     origin + W`` and nodes ``origin .. origin + W`` are computed (the window read with one
     node more below and two above), so every corner and node where the solid's fraction is
     not zero must lie in its window: ``refmap.windows.placement`` with ``reach`` just below
     :func:`cutoff` (``1 - H`` is exactly 0 from there on; a corner is computed when one of
-    its nodes is in the window).  On a periodic axis the window may wrap (``W + 1 <= n``); its map is
-    made continuous across the edge from the wrapped ``xi - x`` and the unwrapped
-    coordinates.  On a walled axis the window stays on the grid (``origin <= n - W``)."""
-    from refmap.windows import _check
-
+    its nodes is in the window).  On a periodic axis the window may wrap (``W + 1 <= n``);
+    a map component read across that axis's edge is moved by the period, so that the map
+    is continuous in the window (``xi - x`` is what is periodic).  On a walled axis the
+    window stays on the grid (``origin <= n - W``)."""
     nd = len(window)
-    S = origins.shape[0]
     nshape = tuple(a - 2 * ghost for a in phip.shape[-nd:])
     cshape = tuple(n + 1 for n in nshape)
-    _check(tuple(window), nshape, periodic)
+    windows.check(tuple(window), nshape, periodic)
     for a in range(nd):
         if periodic[a] and window[a] + 1 > nshape[a]:
             raise ValueError(f"a window of {window[a]} nodes along periodic axis {a} needs "
                              f"window + 1 <= {nshape[a]} nodes")
     size = tuple(w + 3 for w in window)  # nodes origin - 1 .. origin + W + 1
+    read = windows.index(origins, size, nshape, periodic, offset=-1, ghost=ghost)
+    unwrapped = windows.index(origins, size, nshape, (False,) * nd, offset=-1, ghost=ghost)
 
-    def cut(f_k, origin):
-        idx = []
-        for a in range(nd):
-            node = origin[a] - 1 + jnp.arange(size[a], dtype=jnp.int32)
-            if periodic[a]:
-                node = node % nshape[a]
-            idx.append((node + ghost).reshape((1,) * a + (size[a],) + (1,) * (nd - a - 1)))
-        return f_k[(Ellipsis,) + tuple(idx)]
+    def cut(f):  # (S, ..., *padded) -> (S, ..., *size), one window per solid
+        return jax.vmap(lambda f_k, *i_k: f_k[(Ellipsis,) + i_k])(f, *read)
 
-    def coords(origin):
-        out = []
-        for a in range(nd):
-            node = origin[a] - 1 + jnp.arange(size[a], dtype=jnp.int32)
-            x = lows[a] + (node + 0.5) * spacing[a]
-            out.append(jnp.broadcast_to(x.reshape((1,) * a + (size[a],) + (1,) * (nd - a - 1)), size))
-        return jnp.stack(out)
-
-    phiw = jax.vmap(cut)(phip, origins)[:, None]  # (S, 1, *size): one "tile" per solid
-    xiw = (jax.vmap(cut)(dp, origins) + jax.vmap(coords)(origins))[:, None]
+    phiw = cut(phip)[:, None]  # (S, 1, *size): one "tile" per solid
+    # the period crossed by each node read (0 on a walled axis): component a jumps by it
+    jump = jnp.stack([jnp.broadcast_to((u - r) * spacing[a], (origins.shape[0],) + size)
+                      for a, (u, r) in enumerate(zip(unwrapped, read, strict=True))], axis=1)
+    xiw = (cut(xip) + jump)[:, None]
     wc, wn = blend_contributions(phiw, rho0, h, numerics)  # (S, 1, C, W + 1, ...)
     sig, drho = stress_contributions(phiw, xiw, laws, stress_fn, h, spacing, numerics)
+    # corners and nodes origin .. origin + W: one index serves both (corner n of a periodic
+    # axis is corner 0's copy, set below; past a walled edge the scatter drops them)
+    place_at = windows.index(origins, tuple(w + 1 for w in window), nshape, periodic)
 
     def place(values, shape_out, corner):
         """Sum (S, 1, C, W + 1, ...) into (C, *shape_out) at each solid's origin."""
-        C = values.shape[2]
-        idx = []
-        for a in range(nd):
-            i = origins[:, a, None] + jnp.arange(window[a] + 1, dtype=jnp.int32)[None]
-            if periodic[a]:
-                i = i % nshape[a]  # corner n is corner 0's copy, set below
-            idx.append(i.reshape((S,) + (1,) * a + (window[a] + 1,) + (1,) * (nd - a - 1)))
-        out = jnp.zeros((C,) + tuple(shape_out), values.dtype)
-        # indices past a walled edge (the node beyond the last one) are dropped
-        out = out.at[(slice(None),) + tuple(idx)].add(jnp.moveaxis(values[:, 0], 1, 0), mode="drop")
+        out = jnp.zeros((values.shape[2],) + tuple(shape_out), values.dtype)
+        out = out.at[(slice(None),) + place_at].add(jnp.moveaxis(values[:, 0], 1, 0), mode="drop")
         if corner:
             for a in range(nd):
                 if periodic[a]:
@@ -323,6 +305,7 @@ def mixed_on_windows(s_f, rho_f, phip, dp, lows, spacing, origins, window, perio
     A = place(sig, cshape, True)
     Bn = Bn + place(drho, nshape, False)[0]
     return mix(s_f, rho_f, tuple(A), Tc, Bn, Tn)
+
 
 __all__ = ["ERF_ZERO", "Listed", "advect_maps", "blend_contributions", "cutoff", "gather",
            "mix", "mixed_on_windows", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]

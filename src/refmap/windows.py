@@ -33,23 +33,26 @@ from jax import lax
 MARGIN = 2
 
 
-def _axis_indices(origin_a, w: int, n: int):
-    """Node indices ``origin_a .. origin_a + w - 1`` along an axis of ``n`` nodes, modulo
-    ``n`` (only a periodic axis's window reaches past ``n``)."""
-    return (origin_a + jnp.arange(w, dtype=jnp.int32)) % n
-
-
-def _index(origin, window, shape):
-    """Open-mesh index arrays of the window's nodes (``jnp.ix_``-style, one per axis)."""
-    d = len(window)
+def index(origins, size, shape, periodic, offset: int = 0, ghost: int = 0):
+    """Open-mesh index arrays (``jnp.ix_``-style, one per axis) of the nodes ``origin +
+    offset .. origin + offset + size - 1`` of windows at ``origins`` (``(..., d)``: a leading
+    batch of windows gives index arrays with those leading axes), taken modulo the node
+    count on a periodic axis, in an array padded with ``ghost`` layers.  On a non-periodic
+    axis the caller keeps them on the (padded) grid, or lets a scatter drop the rest."""
+    origins = jnp.asarray(origins)
+    d = len(size)
+    lead = origins.shape[:-1]
     idx = []
     for a in range(d):
-        i = _axis_indices(origin[a], window[a], shape[a])
-        idx.append(i.reshape((1,) * a + (window[a],) + (1,) * (d - a - 1)))
+        node = origins[..., a, None] + offset + jnp.arange(size[a], dtype=jnp.int32)
+        if periodic[a]:
+            node = node % shape[a]
+        idx.append((node + ghost).reshape(lead + (1,) * a + (size[a],) + (1,) * (d - a - 1)))
     return tuple(idx)
 
 
-def _check(window, shape, periodic):
+def check(window, shape, periodic):
+    """ValueError unless ``window`` has one size in ``[1, n]`` per axis of ``shape``."""
     if len(window) != len(shape) or len(periodic) != len(shape):
         raise ValueError(
             f"window {tuple(window)}, grid {tuple(shape)} and periodic {tuple(periodic)} "
@@ -66,8 +69,8 @@ def gather(field, origin, window, periodic):
     window = tuple(window)
     d = len(window)
     shape = field.shape[-d:]
-    _check(window, shape, periodic)
-    return field[(Ellipsis,) + _index(origin, window, shape)]
+    check(window, shape, periodic)
+    return field[(Ellipsis,) + index(origin, window, shape, periodic)]
 
 
 def scatter_add(grid_field, values, origin, periodic):
@@ -77,8 +80,8 @@ def scatter_add(grid_field, values, origin, periodic):
     d = origin.shape[-1]
     window = values.shape[-d:]
     shape = grid_field.shape[-d:]
-    _check(window, shape, periodic)
-    return grid_field.at[(Ellipsis,) + _index(origin, window, shape)].add(values)
+    check(window, shape, periodic)
+    return grid_field.at[(Ellipsis,) + index(origin, window, shape, periodic)].add(values)
 
 
 def scatter_add_many(grid_field, values, origins, periodic):
@@ -86,17 +89,14 @@ def scatter_add_many(grid_field, values, origins, periodic):
     *window)``, the leading axes after ``S`` those of ``grid_field``) at its origin
     (``origins`` ``(S, d)``), overlapping windows adding up: one scatter-add."""
     origins = jnp.asarray(origins)
-    S, d = origins.shape
+    d = origins.shape[1]
     window = values.shape[-d:]
     shape = grid_field.shape[-d:]
-    _check(window, shape, periodic)
+    check(window, shape, periodic)
     lead = values.ndim - 1 - d
-    idx = []
-    for a in range(d):
-        i = (origins[:, a, None] + jnp.arange(window[a], dtype=jnp.int32)[None]) % shape[a]
-        idx.append(i.reshape((S,) + (1,) * a + (window[a],) + (1,) * (d - a - 1)))
     # advanced indices on the last d axes: the result's axes are (..., S, *window)
-    return grid_field.at[(Ellipsis,) + tuple(idx)].add(jnp.moveaxis(values, 0, lead))
+    idx = index(origins, window, shape, periodic)
+    return grid_field.at[(Ellipsis,) + idx].add(jnp.moveaxis(values, 0, lead))
 
 
 def shift(values, old_origin, new_origin, shape, periodic, fill):
@@ -105,7 +105,7 @@ def shift(values, old_origin, new_origin, shape, periodic, fill):
     keeps its value, the others take ``fill`` (a scalar)."""
     d = len(shape)
     window = values.shape[-d:]
-    _check(window, shape, periodic)
+    check(window, shape, periodic)
     out = values
     for a in range(d):
         n, w = shape[a], window[a]
@@ -126,9 +126,9 @@ def to_grid(values, origin, shape, periodic, fill):
     ``shape``, ``fill`` elsewhere."""
     d = len(shape)
     window = values.shape[-d:]
-    _check(window, shape, periodic)
+    check(window, shape, periodic)
     base = jnp.full(values.shape[:-d] + tuple(shape), fill, values.dtype)
-    return base.at[(Ellipsis,) + _index(origin, window, shape)].set(values)
+    return base.at[(Ellipsis,) + index(origin, window, shape, periodic)].set(values)
 
 
 def _circular_box(line):
@@ -148,6 +148,20 @@ def _circular_box(line):
     return jnp.where(any_true, start, 0), jnp.where(any_true, length, 0)
 
 
+def axis_box(line, periodic: bool):
+    """(start, length) of the smallest box holding every True of the boolean ``line``
+    (n,): circular on a periodic axis (:func:`_circular_box`), from the first to the last
+    True otherwise; (0, 0) when none is True."""
+    if periodic:
+        return _circular_box(line)
+    n = line.shape[0]
+    idx = jnp.arange(n, dtype=jnp.int32)
+    lo = jnp.min(jnp.where(line, idx, n))
+    hi = jnp.max(jnp.where(line, idx, -1))
+    any_true = jnp.any(line)
+    return jnp.where(any_true, lo, 0), jnp.where(any_true, hi - lo + 1, 0)
+
+
 def placement(phi, reach, window, periodic, margin: int = MARGIN):
     """``(origin (d,) int32, fits bool)`` of a window of size ``window`` for a body whose
     level set is ``phi`` (``(*grid)``): centred on the box of its nodes with
@@ -158,22 +172,20 @@ def placement(phi, reach, window, periodic, margin: int = MARGIN):
     window = tuple(window)
     shape = phi.shape
     d = len(shape)
-    _check(window, shape, periodic)
+    check(window, shape, periodic)
     m = phi <= reach
     origin, fits = [], jnp.any(m)
     for a in range(d):
         n, w = shape[a], window[a]
         line = jnp.any(m, axis=tuple(b for b in range(d) if b != a))
+        start, length = axis_box(line, periodic[a])
         if periodic[a]:
-            start, length = _circular_box(line)
             o = (start + length // 2 - w // 2) % n
             # the box [start, start + length) lies in [o + margin, o + w - margin) mod n
             lo = (start - o) % n
             fits = fits & (lo >= margin) & (lo + length <= w - margin)
         else:
-            idx = jnp.arange(n, dtype=jnp.int32)
-            lo = jnp.min(jnp.where(line, idx, n))
-            hi = jnp.max(jnp.where(line, idx, -1))
+            lo, hi = start, start + length - 1
             o = jnp.clip((lo + hi + 1) // 2 - w // 2, 0, n - w)
             ok_lo = (lo - margin >= o) | (o == 0)
             ok_hi = (hi + margin <= o + w - 1) | (o + w == n)
