@@ -14,6 +14,9 @@ because each layout's work is a kind of run refmap already does:
   slots' bookkeeping (which body a node belongs to, moving a body between slots) is not
   counted, and the union is evaluated as a min over the slot's discs, which a lookup
   would replace;
+* ``stored``: layout (a) as far as it is built: ``Numerics(solid_storage = "window")``,
+  every solid's band work, stress, weights and density on its window, the maps and level
+  sets still stored on the whole grid (docs/design_windows.md, landings 2 and 3a);
 * ``window``: layout (a), one disc alone in a closed box of W x W cells at the same grid
   spacing (the window that would hold it), with and without the disc: the difference is
   one body's work in its window; the fluid on the whole grid (``fluid``, the scenario
@@ -81,6 +84,8 @@ elif layout == "slots":
             shape = shape | d
         solids.append(Solid(shape=shape, law=_law(1.0), name=f"slot {key}"))
     case = case.replace(solids=tuple(solids))
+elif layout == "stored":
+    case = case.replace(numerics=replace(case.numerics, solid_storage="window"))
 elif layout in ("window", "window_fluid"):
     half = window * h / 2
     c, r, rho = discs[0]
@@ -103,7 +108,8 @@ for _ in range(reps):
 ok = bool(jax.numpy.all(jax.numpy.isfinite(state.v)))
 rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print("@@" + json.dumps(dict(step_ms=1e3 * best / steps, compile_s=compile_s, rss_mb=rss,
-                             solids=len(case.solids), finite=ok)))
+                             solids=len(case.solids), finite=ok,
+                             band_window=getattr(model, "solid_band_window", None))))
 """
 
 SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
@@ -139,8 +145,8 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--layouts",
         nargs="+",
-        default=["fluid", "one", "solids", "slots", "window", "window_fluid"],
-        choices=["fluid", "one", "solids", "slots", "window", "window_fluid"],
+        default=["fluid", "one", "solids", "stored", "slots", "window", "window_fluid"],
+        choices=["fluid", "one", "solids", "stored", "slots", "window", "window_fluid"],
     )
     a = ap.parse_args(argv)
     res = {}
@@ -157,6 +163,11 @@ def main(argv=None) -> int:
     one = res.get("one", {}).get("step_ms")
     if "solids" in res:
         print(f"  (today) one solid per disc      {res['solids']['step_ms']:9.1f}")
+    if "stored" in res:
+        r = res["stored"]
+        print(f"  solid_storage = window (built)  {r['step_ms']:9.1f}  (band windows {r['band_window']})")
+        if "solids" in res:
+            print(f"    per step against today: {res['solids']['step_ms'] / r['step_ms']:.2f}x")
     if "slots" in res:
         print(f"  (b) 4 slots, no bookkeeping     {res['slots']['step_ms']:9.1f}")
     if {"window", "window_fluid"} <= res.keys() and fluid is not None:

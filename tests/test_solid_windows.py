@@ -145,3 +145,93 @@ def test_solid_storage_is_checked_and_in_case_files():
     back = case_from_dict(tomllib.loads(text)).case
     assert back.numerics.solid_storage == "window"
     assert back.build()[0].solid_window is not None
+
+
+BAND_CASES = {
+    # a disc across the x edge, one across the corner, one inside (as CASES["periodic"])
+    "periodic": CASES["periodic"],
+    # walls: a disc 3.6 cells from the left wall (not glued to it), one near the top, two
+    # close together
+    "walls": (Boundary(), [(-1.55, 0.0), (0.5, 1.6), (0.3, -0.6), (0.95, -0.6)], (0.0, -0.5)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAND_CASES))
+def test_band_work_on_windows_steps_as_the_whole_grid(name, monkeypatch):
+    """``solid_storage = "window"`` also runs each solid's map advection, pinning,
+    re-distancing, extrapolation and smoothing on a window round its nodes with
+    ``phi < phi_max h`` (``Model._band_on_windows``).  Outside it the grid's phases change
+    nothing either, so 30 steps equal the whole grid's (``band_sweeps = "grid"``) to
+    round-off, with bodies across a periodic edge and corner (the window wraps and the map
+    is made continuous in it) and next to a wall (the window's ghosts are the grid's linear
+    ones); a window too small for the bodies falls back on the whole grid.  (Round-off can
+    flip an ENO stencil choice where two differences tie, which moves a map by
+    ~dt h^3 |d^3 xi|; not seen in these runs, whose differences stay at 1e-13.)"""
+    import dataclasses
+
+    boundary, centers, gravity = BAND_CASES[name]
+    base = _model(boundary, centers, n=96)
+    base = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, band_sweeps="grid"))
+    params = base.default_params(gravity=gravity)
+    # the band's tiles swept in each window (band_sweeps "band"; at this size the band holds
+    # more than BAND_TILE_FRACTION of a window's tiles, so the limit is lifted), and the whole
+    # window ("grid")
+    with monkeypatch.context() as mp:
+        mp.setattr(model_module, "BAND_TILE_FRACTION", 1.0)
+        win = Model(base.grid, base.solids, boundary,
+                    dataclasses.replace(base.numerics, solid_storage="window", band_sweeps="band"))
+    whole = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, solid_storage="window"))
+    assert not win.bc._glue
+    assert win.solid_band_window is not None and base.solid_band_window is None
+    assert win._band_window_tiles is not None and whole._band_window_tiles is None
+    assert all(w < n for w, n in zip(win.solid_band_window, base.grid.shape(), strict=True))
+    small = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, solid_storage="window"))
+    small.solid_band_window = (30, 30)  # less than a body's phi < phi_max h box: falls back
+    out = []
+    for m in (base, win, whole, small):
+        s = jax.jit(m.initial_state)(params)
+        X, Y = (jnp.asarray(a) for a in m.grid.mesh("node"))
+        q = jnp.pi / 2
+        s = s.replace(xi=s.xi + jnp.stack([0.04 * jnp.sin(q * Y) * jnp.cos(q * X), 0.03 * jnp.sin(q * X)])[None])
+        out.append(jax.jit(lambda s, m=m: m.run_steps(s, params, 30))(s))
+    a, b = out[:2]
+    for f in ("v", "rho_f", "xi", "phi"):
+        ref = np.asarray(getattr(a, f))
+        scale = max(float(np.max(np.abs(ref))), 1.0)
+        for other in out[1:]:
+            np.testing.assert_allclose(np.asarray(getattr(other, f)), ref, rtol=0, atol=1e-11 * scale,
+                                       err_msg=f)
+    assert float(jnp.max(jnp.abs(a.v))) > 1e-3  # the bodies move
+    # the windowed branch was taken (the last state's boxes fit), the small one's was not
+    reach = win.numerics.phi_max * win.h * (1 - 1e-9)
+    for m, expect in ((win, True), (small, False)):
+        _, fits = jax.vmap(lambda p, m=m: windows.placement(
+            p, reach, m.solid_band_window, m.bc.periodic, margin=model_module.BAND_WINDOW_MARGIN))(b.phi)
+        assert bool(jnp.all(fits)) == expect
+    # the bodies' maps changed inside their windows (the windows are written back)
+    assert float(jnp.max(jnp.abs(b.xi - jnp.asarray(win._xi0)))) > 1e-3
+
+
+def test_band_windows_are_not_used_with_anchors_glue_or_large_bodies():
+    """The band work stays on the whole grid where its windows do not apply: an anchored
+    solid (its region is a grid field), a solid glued to a wall at t = 0 (its ghosts are
+    not linear), a body whose box is more than half the grid."""
+    import dataclasses
+
+    from refmap.anchors import RegionAnchor
+
+    numerics = Numerics(solid_storage="window")
+    law = NeoHookean(G=10.0, kappa=10.0, rho0=1.0)
+    grid = Grid(96, 96)
+    free = Model(grid, (Solid(shape=Disc(center=(0.0, 0.0), radius=0.3), law=law),), Boundary(), numerics)
+    assert free.solid_band_window is not None
+    anchored = Model(grid, (Solid(shape=Disc(center=(0.0, 0.0), radius=0.3), law=law,
+                                  anchor=RegionAnchor(Disc(center=(0.0, 0.0), radius=0.1))),),
+                     Boundary(), numerics)
+    assert anchored.solid_band_window is None and anchored.solid_window is not None
+    glued = Model(grid, (Solid(shape=Disc(center=(-1.8, 0.0), radius=0.3), law=law),), Boundary(), numerics)
+    assert glued.bc._glue and glued.solid_band_window is None
+    big = Model(grid, (Solid(shape=Disc(center=(0.0, 0.0), radius=1.2), law=law),), Boundary(), numerics)
+    assert big.solid_band_window is None
+    grid_mode = Model(grid, free.solids, Boundary(), dataclasses.replace(numerics, solid_storage="grid"))
+    assert grid_mode.solid_band_window is None

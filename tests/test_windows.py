@@ -204,3 +204,43 @@ def test_placement_with_a_tight_window(periodic):
     assert bool(fits)
     _, fits = windows.placement(jnp.asarray(phi), reach, (tight - 1, tight - 1), periodic)
     assert not bool(fits)
+
+
+@pytest.mark.parametrize("periodic", [(False, False), (True, False), (True, True)])
+def test_gather_ghosted_reads_the_padded_grid(periodic):
+    """A window with two ghost layers read by ``gather_ghosted`` from the unpadded field is,
+    bit for bit, the same box of ``BoundaryConditions.pad_linear``'s padded field: wrapped
+    round a periodic edge, linearly extrapolated past a wall (edges and corners)."""
+    from refmap.boundary import Boundary, BoundaryConditions
+    from refmap.grid import Grid
+
+    edge = {False: "wall", True: "periodic"}
+    bc = BoundaryConditions(Grid(20, 17), Boundary(left=edge[periodic[0]], right=edge[periodic[0]],
+                                                   bottom=edge[periodic[1]], top=edge[periodic[1]]))
+    rng = np.random.default_rng(3)
+    f = jnp.asarray(rng.normal(size=(3, 20, 17)))
+    padded = np.asarray(bc.pad_linear(f))
+    W = (8, 7)
+    for o in [(0, 0), (12, 10), (5, 3), (19, 16), (13, 0)]:
+        o = tuple(min(o[a], f.shape[1 + a] - W[a]) if not periodic[a] else o[a] for a in range(2))
+        got = windows.gather_ghosted(f, jnp.asarray(o), (W[0] + 4, W[1] + 4), periodic, offset=-2)
+        # padded index of node u is u + 2; a periodic axis wraps u first
+        ix = [((np.arange(W[a] + 4) + o[a] - 2) % f.shape[1 + a] if periodic[a] else
+               np.arange(W[a] + 4) + o[a] - 2) + 2 for a in range(2)]
+        np.testing.assert_array_equal(np.asarray(got), padded[:, ix[0]][:, :, ix[1]])
+    # coordinates: wrapped ones are the grid's node coordinates, unwrapped ones continue
+    grid = Grid(20, 17)
+    X = windows.coordinates(jnp.asarray((18, 15)), (4, 4), grid.lows, grid.spacing, (20, 17), (True, True))
+    Xu = windows.coordinates(jnp.asarray((18, 15)), (4, 4), grid.lows, grid.spacing, (20, 17), (True, True),
+                             wrap=False)
+    mesh = np.stack(grid.mesh("node"))
+    np.testing.assert_array_equal(np.asarray(X), mesh[:, [18, 19, 0, 1]][:, :, [15, 16, 0, 1]])
+    np.testing.assert_allclose(np.asarray(Xu)[0, 2:] - np.asarray(X)[0, 2:], grid.bx - grid.ax, rtol=1e-14)
+
+
+def test_put_writes_only_the_window():
+    f = jnp.zeros((2, 10, 9))
+    vals = jnp.ones((2, 4, 3))
+    out = np.asarray(windows.put(f, vals, jnp.asarray((8, 7)), (True, True)))
+    assert out.sum() == 24
+    assert out[:, [8, 9, 0, 1]][:, :, [7, 8, 0]].min() == 1.0

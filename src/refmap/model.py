@@ -26,6 +26,7 @@ are advanced with the updated velocity; the explicit default is unchanged bit fo
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from dataclasses import dataclass
@@ -82,6 +83,13 @@ SOLID_TILE_FRACTION = 0.5
 #: nodes a solid's window (``Numerics.solid_storage = "window"``) holds beyond its
 #: blend's reach at t = 0 and the placement's margins: room to move and deform
 SOLID_WINDOW_SLACK = 8
+#: nodes between the box of a solid's level set below ``phi_max h`` and the edge of its
+#: band window (:meth:`Model._band_on_windows`): the re-distancing's two sweeps and the body's
+#: motion within the step reach two of them; the window's own edge ghosts never reach the box
+BAND_WINDOW_MARGIN = 4
+#: a band window larger than this fraction of the grid's nodes is not used (the whole grid
+#: is then as cheap): the rotor's body fills most of its box
+BAND_WINDOW_FRACTION = 0.5
 
 
 def _pack_mixed(s_mix, rho, wf_c, wf_n):
@@ -348,6 +356,7 @@ class Model:
         self.band_capacity = self._initial_band_capacity()
         self.solid_tiles = self._initial_solid_tiles()
         self.solid_window = self._initial_solid_window()
+        self.solid_band_window = self._initial_solid_band_window()
 
     def _initial_solid_tiles(self):
         """``(tile, blend capacities, stress capacities)`` for computing each solid's
@@ -408,6 +417,68 @@ class Model:
             min(e + 2 * windows.MARGIN + SOLID_WINDOW_SLACK, m - 1 if p else m)
             for e, m, p in zip(ext, shape, self.bc.periodic, strict=True)
         )
+
+    def _initial_solid_band_window(self):
+        """``Numerics.solid_storage = "window"``: the static box (nodes per axis) in which each
+        solid's band work of a step runs (:meth:`_band_on_windows`: map advection, pinning
+        and re-distancing, extrapolation and smoothing): the largest extent, over the solids
+        at t = 0, of the nodes with ``phi < phi_max h`` (beyond them the clipped level set
+        and the maps do not change), plus ``2 * BAND_WINDOW_MARGIN + SOLID_WINDOW_SLACK``;
+        at most the grid on a walled axis and one node less on a periodic one.  None (the
+        band work on the whole grid, as with ``"grid"``) without solids, with an anchor (its
+        region and weights are full-grid fields), with a solid glued to a wall (its ghosts
+        are not the linear ones :func:`refmap.windows.gather_ghosted` forms), or when the
+        box holds more than ``BAND_WINDOW_FRACTION`` of the grid's nodes."""
+        n = self.numerics
+        self._band_window_tiles = None
+        if n.solid_storage != "window" or not self.solids or self.bc._glue:
+            return None
+        if any(s.anchor is not None for s in self.solids):
+            return None
+        reach = n.phi_max * self.h
+        ext = [0] * self.ndim
+        for k in range(self.n_solids):
+            m = self._phi_t0[k] < reach
+            for a in range(self.ndim):
+                line = m.any(axis=tuple(b for b in range(self.ndim) if b != a))
+                with jax.ensure_compile_time_eval():
+                    length = windows.axis_box(jnp.asarray(line), self.bc.periodic[a])[1]
+                ext[a] = max(ext[a], int(length))
+        shape = self.grid.shape()
+        window = tuple(
+            min(e + 2 * BAND_WINDOW_MARGIN + SOLID_WINDOW_SLACK, m - 1 if p else m)
+            for e, m, p in zip(ext, shape, self.bc.periodic, strict=True)
+        )
+        if math.prod(window) > BAND_WINDOW_FRACTION * math.prod(shape):
+            return None
+        self._band_window_tiles = self._initial_band_window_tiles(window)
+        return window
+
+    def _initial_band_window_tiles(self, window):
+        """``(tile, (tight, capacity))``: the extrapolation and smoothing on each band
+        window sweep only its band's tiles (:func:`refmap.extrapolation.extend` with a
+        capacity ladder, as on the grid), sized from the windows placed on the bodies at
+        t = 0; None (the whole window) with ``band_sweeps = "grid"`` or when the band holds
+        more than ``BAND_TILE_FRACTION`` of a window's tiles."""
+        n = self.numerics
+        if n.band_sweeps == "grid":
+            return None
+        nd = self.ndim
+        tile = (extrapolation.TILE_TARGET[nd],) * nd
+        shift = n.advected_band * self.h
+        with jax.ensure_compile_time_eval():
+            phi = jnp.asarray(self._phi_t0)
+            origins, _ = jax.vmap(lambda p: windows.placement(
+                p, n.phi_max * self.h, window, self.bc.periodic, margin=BAND_WINDOW_MARGIN))(phi)
+            phi_w = jax.vmap(lambda p, o: windows.gather(p, o, window, self.bc.periodic))(phi, origins)
+            counts = np.asarray(extrapolation.band_tiles(phi_w - shift, n.band * self.h - shift, tile,
+                                                         (False,) * nd))
+        total = math.prod(narrowband.n_tiles(window, tile))
+        capacity = narrowband.capacity_for(counts.tolist(), n.band_capacity, total)
+        if capacity > BAND_TILE_FRACTION * total:
+            return None
+        tight = min(narrowband.capacity_for(counts.tolist(), BAND_TIGHT, total), capacity)
+        return tile, (tight, capacity)
 
     def _auto_too_small(self) -> bool:
         """``band_sweeps = "auto"``: a 2D grid too small for tiles to pay
@@ -575,8 +646,10 @@ class Model:
         sweep rule (``Numerics.fixed_smooth_sweeps``, else the adaptive stop)."""
         return self._extend_all(f[None], phi_k[None], fixed_sweeps)[0]
 
-    def _extend_all(self, f, phi, fixed_sweeps=None):
-        """:meth:`_extend` for every solid at once: ``f`` (S, c, nx, ny), ``phi`` (S, nx, ny)."""
+    def _extend_all(self, f, phi, fixed_sweeps=None, windowed: bool = False):
+        """:meth:`_extend` for every solid at once: ``f`` (S, c, nx, ny), ``phi`` (S, nx, ny).
+        ``windowed``: the arrays are windows (:meth:`_band_on_windows`): swept whole, no
+        axis wrapping round."""
         n = self.numerics
         shift = n.advected_band * self.h  # 0 by default: phi - 0.0 is phi, bit for bit
         smooth = dict(
@@ -593,12 +666,15 @@ class Model:
             self.grid.dx,
             self.grid.dy,
             n.band * self.h - shift,
-            **({"dz": self.grid.dz, "window": self.band_window} if self.ndim == 3 else {}),
-            capacity=self.band_capacity
+            **({"dz": self.grid.dz, "window": None if windowed else self.band_window}
+               if self.ndim == 3 else {}),
+            capacity=(None if self._band_window_tiles is None else self._band_window_tiles[1])
+            if windowed else self.band_capacity
             if self.band_capacity is None or self._band_tight is None
             else (self._band_tight, self.band_capacity),
-            tile=self.band_tile,
-            periodic=self.bc.periodic,
+            tile=(None if self._band_window_tiles is None else self._band_window_tiles[0])
+            if windowed else self.band_tile,
+            periodic=(False,) * self.ndim if windowed else self.bc.periodic,
             smooth=smooth,
         )
 
@@ -636,7 +712,10 @@ class Model:
             out = out + vjp(fb)[0] - fb
         return out
 
-    def pin(self, phi, xi, dt):
+    def pin(self, phi, xi, dt, periodic=None):
+        """The level sets ``phi`` (S, ...) pinned to the maps ``xi`` (S, d, ...) and
+        re-distanced (:func:`refmap.levelset.pin_levelset`); ``periodic``: the wrap flags
+        of the arrays' axes (default the grid's; windows pass none)."""
         n = self.numerics
         h = self.h
         # phi = phi0(xi) at the nodes next to the contour (|phi| < pin_copy h), so the contour
@@ -657,7 +736,7 @@ class Model:
                     outer=(n.band - 1.0) * h,
                     redistance_iters=n.redistance_iters,
                     phi_max=n.phi_max * h,
-                    periodic=self.bc.periodic,
+                    periodic=self.bc.periodic if periodic is None else periodic,
                     **self._dz(),
                 )
             )
@@ -862,7 +941,7 @@ class Model:
         if self.solid_window is not None:
             # the mixed fields from one window per solid (Numerics.solid_storage "window")
             s_mix, rho, wf_c, wf_n = self._mixed_on_windows(
-                s_f, state.rho_f, phip2, xip2, params,
+                s_f, state.rho_f, state.phi, state.xi, params,
                 lambda: self._solids_full(s_f, state.rho_f, state.phi, phip2[core], xip2[core], params)["mixed"])
         elif self.solid_tiles is not None:
             # the mixed fields from each solid's tiles (the per-solid fields stay the
@@ -911,25 +990,33 @@ class Model:
             valid=valid, sigma_s=sig, Hc=Hc, Hn=Hn, ws_c=ws_c, ws_n=ws_n, phic=phic,
         )
 
-    def _mixed_on_windows(self, s_f, rho_f, phip, xip, params, full):
+    def _mixed_on_windows(self, s_f, rho_f, phi, xi, params, full):
         """The mixed stress components, density and fluid fractions of :meth:`derived`
-        from one window per solid (:func:`refmap.solid_tiles.mixed_on_windows`, windows of
-        :attr:`solid_window` nodes placed on each solid's blend zone this step); ``full()``
-        (the same four on the whole grid) in a step where a solid's zone does not fit its
-        window.  ``phip``, ``xip``: the level sets and maps padded with two ghost layers."""
+        from one window per solid (:func:`refmap.solid_tiles.mixed_from_windows`, windows of
+        :attr:`solid_window` nodes placed on each solid's blend zone this step, cut from the
+        unpadded level sets ``phi`` and maps ``xi`` by
+        :func:`refmap.solid_tiles.cut_windows`, or from the padded grid fields when a solid
+        is glued to a wall); ``full()`` (the same four on the whole grid)
+        in a step where a solid's zone does not fit its window."""
         n = self.numerics
         W = self.solid_window
         periodic = self.bc.periodic
         # 1 - H is exactly 0 from the cutoff on; which nodes: no derivative
         reach = solid_tiles.cutoff(n.blend, n.blur_width * self.h) * (1.0 - 1e-12)
-        phi = lax.stop_gradient(phip[self._core(2)])
-        origins, fits = jax.vmap(lambda p: windows.placement(p, reach, W, periodic))(phi)
+        origins, fits = jax.vmap(lambda p: windows.placement(p, reach, W, periodic))(
+            lax.stop_gradient(phi))
         rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=rho_f.dtype) for law in params.laws])
 
         def win(_):
-            return _pack_mixed(*solid_tiles.mixed_on_windows(
-                s_f, rho_f, phip, xip, self.spacing, origins, W, periodic,
-                params.laws, rho0, _solid_stresses, self.h, n))
+            if self.bc._glue:  # a glued solid's wall ghosts are not the linear ones
+                return _pack_mixed(*solid_tiles.mixed_on_windows(
+                    s_f, rho_f, self.bc.pad_linear(phi), self.bc.pad_affine(xi), self.spacing,
+                    origins, W, periodic, params.laws, rho0, _solid_stresses, self.h, n))
+            phiw, xiw = solid_tiles.cut_windows(phi, xi, origins, W, self.grid.lows, self.spacing,
+                                                periodic)
+            return _pack_mixed(*solid_tiles.mixed_from_windows(
+                s_f, rho_f, phiw, xiw, self.spacing, origins, W, periodic,
+                params.laws, rho0, _solid_stresses, self.h, n, self.grid.shape()))
 
         def dense(_):
             return _pack_mixed(*full())
@@ -1008,6 +1095,60 @@ class Model:
                                                      self.spacing, dt, advect=self._advect)
 
         return narrowband.switch(level, [tiled(c) for c in caps] + [dense], None)
+
+    def _band_on_windows(self, xi, phi, vel, dt):
+        """Steps 1 and 9 of :meth:`step` (map advection, pinning and re-distancing,
+        extrapolation and smoothing) on one window of :attr:`solid_band_window` nodes per
+        solid, placed round the nodes with ``phi < phi_max h`` (``Numerics.solid_storage =
+        "window"``).  The maps and level sets are gathered from the grid (on a periodic axis
+        the window wraps round and the map is made continuous in it; at a wall its ghosts
+        are :func:`refmap.windows.gather_ghosted`'s linear ones, as ``pad_affine``'s), the
+        phases run on the windows as they run on the grid, and the windows are written
+        back.  Outside a window nothing changes in the grid's phases either (the level set
+        is clipped at ``phi_max h`` there and the maps are neither advected nor extended), so
+        the result is the whole grid's to round-off.  A step in which a body's box does not
+        fit its window runs the phases on the whole grid."""
+        n = self.numerics
+        W = self.solid_band_window
+        per = self.bc.periodic
+        g = self.grid
+        nd = self.ndim
+        shape = g.shape()
+        sp = self.spacing
+        reach = n.phi_max * self.h * (1.0 - 1e-9)  # the clipped nodes stay out of the box
+        origins, fits = jax.vmap(lambda p: windows.placement(p, reach, W, per, margin=BAND_WINDOW_MARGIN))(
+            lax.stop_gradient(phi))
+        limit = (n.band - 3.0) * self.h
+        advect = self._advect
+        padded = tuple(w + 4 for w in W)
+
+        def cut(xi_k, phi_k, o):
+            coords = functools.partial(windows.coordinates, lows=g.lows, spacing=sp, shape=shape,
+                                       periodic=per)
+            X = coords(o, W)  # the nodes gather reads (wrapped round)
+            xi_w = windows.gather(xi_k, o, W, per)
+            phi_w = windows.gather(phi_k, o, W, per)
+            v_w = windows.gather(vel, o, W, per)
+            # two ghost layers, the map continuous across a periodic edge (xi - x is what
+            # is periodic): as BoundaryConditions.pad_affine on the grid
+            xip = windows.gather_ghosted(xi_k, o, padded, per, offset=-2)
+            xip = (xip - coords(o, padded, offset=-2)) + coords(o, padded, offset=-2, wrap=False)
+            xi_w = jnp.where(phi_w < limit, xi_w + dt * advect(xip, v_w, *sp), xi_w)
+            return xi_w, phi_w, X
+
+        def win(_):
+            xi_w, phi_w, X = jax.vmap(cut)(xi, phi, origins)
+            phi_w = self.pin(phi_w, xi_w, dt, periodic=(False,) * nd)
+            xi_w = self._extend_all(xi_w - X, phi_w, windowed=True) + X
+            put = functools.partial(windows.put, periodic=per)
+            return jax.vmap(put)(xi, xi_w, origins), jax.vmap(put)(phi, phi_w, origins)
+
+        def dense(_):
+            xi_new = self._advect_maps(xi, self.bc.pad_affine(xi), vel, phi, dt)
+            phi_new = self.pin(phi, xi_new, dt)
+            return self.extrapolate(xi_new, phi_new), phi_new
+
+        return narrowband.switch(jnp.where(jnp.all(fits), 0, 1), [win, dense], None)
 
     def conserve_fluid_mass(self, rho_f, wf_old, rho_new, phi_new):
         """``rho_new`` shifted so that the fluid's mass ``sum(w_f rho_f)`` is the one before
@@ -1207,23 +1348,29 @@ class Model:
         if self.n_solids == 0:
             return done(state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new))
 
-        # 1. reference-map advection inside each solid and the inner part of its band
-        # with implicit viscosity the maps move with the updated velocity (symplectic Euler
-        # for the elastic waves: no damping needed for their stability, see time_step)
-        xi_new = self._advect_maps(state.xi, bc.pad_affine(state.xi), vq, state.phi, dt)
+        if self.solid_band_window is not None:
+            # steps 1 and 9 below on one window per solid (Numerics.solid_storage "window";
+            # no anchors there)
+            xi_new, phi_new = self._band_on_windows(state.xi, state.phi, vq, dt)
+        else:
+            # 1. reference-map advection inside each solid and the inner part of its band
+            # with implicit viscosity the maps move with the updated velocity (symplectic
+            # Euler for the elastic waves: no damping needed for their stability, see
+            # time_step)
+            xi_new = self._advect_maps(state.xi, bc.pad_affine(state.xi), vq, state.phi, dt)
 
-        # 8. anchors
-        xi0 = jnp.asarray(self._xi0)
-        for k, s in enumerate(self.solids):
-            if s.anchor is not None:
-                v_k, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])
-                if not anchors_first:  # else applied to the velocity above
-                    v_new = v_k
-                xi_new = xi_new.at[k].set(xk)
+            # 8. anchors
+            xi0 = jnp.asarray(self._xi0)
+            for k, s in enumerate(self.solids):
+                if s.anchor is not None:
+                    v_k, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])
+                    if not anchors_first:  # else applied to the velocity above
+                        v_new = v_k
+                    xi_new = xi_new.at[k].set(xk)
 
-        # 9. pin the level sets, then extrapolate and smooth the maps
-        phi_new = self.pin(state.phi, xi_new, dt)
-        xi_new = self.extrapolate(xi_new, phi_new)
+            # 9. pin the level sets, then extrapolate and smooth the maps
+            phi_new = self.pin(state.phi, xi_new, dt)
+            xi_new = self.extrapolate(xi_new, phi_new)
         if n.fluid_mass == "conserved" and self.projection is None:
             rho_new = self.conserve_fluid_mass(rho_f, d["wf_n"], rho_new, phi_new)
         return done(state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new, xi=xi_new,

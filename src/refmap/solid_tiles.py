@@ -32,6 +32,7 @@ that step (same result).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -265,7 +266,6 @@ def mixed_on_windows(s_f, rho_f, phip, xip, spacing, origins, window, periodic, 
     window stays on the grid (``origin <= n - W``)."""
     nd = len(window)
     nshape = tuple(a - 2 * ghost for a in phip.shape[-nd:])
-    cshape = tuple(n + 1 for n in nshape)
     windows.check(tuple(window), nshape, periodic)
     for a in range(nd):
         if periodic[a] and window[a] + 1 > nshape[a]:
@@ -278,11 +278,41 @@ def mixed_on_windows(s_f, rho_f, phip, xip, spacing, origins, window, periodic, 
     def cut(f):  # (S, ..., *padded) -> (S, ..., *size), one window per solid
         return jax.vmap(lambda f_k, *i_k: f_k[(Ellipsis,) + i_k])(f, *read)
 
-    phiw = cut(phip)[:, None]  # (S, 1, *size): one "tile" per solid
     # the period crossed by each node read (0 on a walled axis): component a jumps by it
     jump = jnp.stack([jnp.broadcast_to((u - r) * spacing[a], (origins.shape[0],) + size)
                       for a, (u, r) in enumerate(zip(unwrapped, read, strict=True))], axis=1)
-    xiw = (cut(xip) + jump)[:, None]
+    return mixed_from_windows(s_f, rho_f, cut(phip), cut(xip) + jump, spacing, origins, window,
+                              periodic, laws, rho0, stress_fn, h, numerics, nshape)
+
+
+def cut_windows(phi, xi, origins, window, lows, spacing, periodic):
+    """The level sets and maps that :func:`mixed_from_windows` reads, cut from the unpadded
+    grid fields ``phi`` (S, *grid) and ``xi`` (S, d, *grid) without padding the grid: nodes
+    ``origin - 1 .. origin + W + 1`` of each solid's window, ghosts beyond a wall the linear
+    ones of ``pad_linear`` / ``pad_affine`` (:func:`refmap.windows.gather_ghosted`), the map
+    made continuous across a periodic edge (``xi - x`` is what is periodic)."""
+    nd = len(window)
+    shape = phi.shape[-nd:]
+    size = tuple(w + 3 for w in window)
+
+    def one(phi_k, xi_k, o):
+        X = functools.partial(windows.coordinates, o, size, lows, spacing, shape, periodic, offset=-1)
+        xiw = windows.gather_ghosted(xi_k, o, size, periodic, offset=-1)
+        return (windows.gather_ghosted(phi_k, o, size, periodic, offset=-1),
+                (xiw - X()) + X(wrap=False))
+
+    return jax.vmap(one)(phi, xi, origins)
+
+
+def mixed_from_windows(s_f, rho_f, phiw, xiw, spacing, origins, window, periodic, laws, rho0,
+                       stress_fn, h, numerics, nshape):
+    """:func:`mixed_on_windows` from the windows already cut: ``phiw`` (S, *size) and
+    ``xiw`` (S, d, *size), ``size = W + 3`` nodes per axis from ``origin - 1``, the map
+    continuous in the window; ``nshape`` the grid's node counts."""
+    nd = len(window)
+    cshape = tuple(n + 1 for n in nshape)
+    phiw = phiw[:, None]  # (S, 1, *size): one "tile" per solid
+    xiw = xiw[:, None]
     wc, wn = blend_contributions(phiw, rho0, h, numerics)  # (S, 1, C, W + 1, ...)
     sig, drho = stress_contributions(phiw, xiw, laws, stress_fn, h, spacing, numerics)
     # corners and nodes origin .. origin + W: one index serves both (corner n of a periodic
@@ -308,4 +338,4 @@ def mixed_on_windows(s_f, rho_f, phip, xip, spacing, origins, window, periodic, 
 
 
 __all__ = ["ERF_ZERO", "Listed", "advect_maps", "blend_contributions", "cutoff", "gather",
-           "mix", "mixed_on_windows", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
+           "cut_windows", "mix", "mixed_from_windows", "mixed_on_windows", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]

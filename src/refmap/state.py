@@ -238,11 +238,15 @@ class Numerics:
     ``solid_storage`` (issue 14; docs/design_windows.md): ``"grid"`` (default) or
     ``"window"``.  Today every solid's map and level set live on the whole grid either
     way; with ``"window"`` the solids' stress, blend weights and density of each step are
-    computed on one box per solid that follows it (:func:`refmap.solid_tiles.mixed_on_windows`,
+    computed on one box per solid that follows it (:func:`refmap.solid_tiles.mixed_from_windows`,
     the box sized at t = 0, :meth:`refmap.model.Model._initial_solid_window`), instead of
-    on its tiles or the whole grid; a step in which a body has outgrown its box computes
-    them on the whole grid (same results).  The first step towards storing each solid in
-    its box; tested in 2D only.
+    on its tiles or the whole grid, and so is each solid's band work (map advection,
+    pinning and re-distancing, extrapolation and smoothing) on a larger box that holds its
+    nodes with ``phi < phi_max h`` (:meth:`refmap.model.Model._band_on_windows`); a step
+    in which a body has outgrown a box does that part on the whole grid (same results).
+    The band work stays on the whole grid for an anchored solid, a solid glued to a wall
+    at t = 0, or a body whose box would hold more than half the grid (the rotor).  Steps
+    towards storing each solid in its box; tested in 2D only.
     """
 
     blur_width: float = 2.0

@@ -9,6 +9,10 @@ windowed phase shares; it knows nothing of reference maps or stresses:
   (wrapping round) on a periodic one, and whether that box with ``margin`` nodes to spare
   fits;
 * :func:`gather`: the window's values of a grid field (a periodic axis wraps round);
+  :func:`gather_ghosted`: the same with nodes past a wall read as the linear ghosts of
+  ``BoundaryConditions.pad_linear`` (a window with ghost layers, no padded grid);
+  :func:`coordinates`: the node coordinates of a window, wrapped or continued;
+* :func:`put`: a window's values written into a grid field;
 * :func:`scatter_add`: windows' values added into a grid field (overlapping windows add;
   the exact transpose of :func:`gather`, tested by the adjoint identity);
 * :func:`shift`: a window's values moved to a new origin (a body that travelled), the
@@ -71,6 +75,63 @@ def gather(field, origin, window, periodic):
     shape = field.shape[-d:]
     check(window, shape, periodic)
     return field[(Ellipsis,) + index(origin, window, shape, periodic)]
+
+
+def gather_ghosted(field, origin, size, periodic, offset: int = 0):
+    """The values of ``field`` (``(..., *grid)``) at the nodes ``origin + offset ..
+    origin + offset + size - 1`` of each axis, shape ``(..., *size)``: wrapped round on a
+    periodic axis; on a walled axis the nodes beyond the grid take the linear extrapolation
+    of the two nodes next to the edge, as the ghost layers of
+    ``BoundaryConditions.pad_linear`` do (``(1 - u) f_0 + u f_1`` at node ``u < 0``), axis
+    after axis like that padding, so a window at a wall reads the same ghosts as the padded
+    grid without padding the whole grid."""
+    size = tuple(size)
+    d = len(size)
+    shape = field.shape[-d:]
+    out = field
+    for a in range(d):
+        ax = out.ndim - d + a
+        n = shape[a]
+        u = origin[a] + offset + jnp.arange(size[a], dtype=jnp.int32)
+        if periodic[a]:
+            out = jnp.take(out, u % n, axis=ax)
+            continue
+        inside = jnp.take(out, jnp.clip(u, 0, n - 1), axis=ax)
+        f0, f1, e0, e1 = (lax.index_in_dim(out, i, axis=ax) for i in (0, 1, n - 1, n - 2))
+        bshape = (1,) * ax + (size[a],) + (1,) * (out.ndim - ax - 1)
+        uf = u.astype(out.dtype).reshape(bshape)
+        m = uf - (n - 1)
+        low = (1 - uf) * f0 + uf * f1
+        high = (1 + m) * e0 - m * e1
+        out = jnp.where((u < 0).reshape(bshape), low, jnp.where((u > n - 1).reshape(bshape), high, inside))
+    return out
+
+
+def coordinates(origin, size, lows, spacing, shape, periodic, offset: int = 0, wrap: bool = True):
+    """Node coordinates ``(d, *size)`` of the window's nodes ``origin + offset ..`` (the
+    grid's ``low + (i + 0.5) h``): with ``wrap``, of the node a periodic axis wraps round to
+    (the coordinates :func:`gather` reads); without, continued past the edge (a map made
+    continuous across a periodic edge)."""
+    d = len(size)
+    axes = []
+    for a in range(d):
+        u = origin[a] + offset + jnp.arange(size[a], dtype=jnp.int32)
+        if wrap and periodic[a]:
+            u = u % shape[a]
+        axes.append(lows[a] + (u.astype(jnp.float64) + 0.5) * spacing[a])
+    return jnp.stack(jnp.meshgrid(*axes, indexing="ij"))
+
+
+def put(grid_field, values, origin, periodic):
+    """``grid_field`` with its values on the window at ``origin`` replaced by ``values``
+    (``(..., *window)``; a window never overlaps itself: at most ``n`` nodes along a
+    periodic axis)."""
+    origin = jnp.asarray(origin)
+    d = origin.shape[-1]
+    window = values.shape[-d:]
+    shape = grid_field.shape[-d:]
+    check(window, shape, periodic)
+    return grid_field.at[(Ellipsis,) + index(origin, window, shape, periodic)].set(values)
 
 
 def scatter_add(grid_field, values, origin, periodic):
