@@ -235,3 +235,41 @@ def test_band_windows_are_not_used_with_anchors_glue_or_large_bodies():
     assert big.solid_band_window is None
     grid_mode = Model(grid, free.solids, Boundary(), dataclasses.replace(numerics, solid_storage="grid"))
     assert grid_mode.solid_band_window is None
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_contact_on_windows_equals_the_grid(periodic):
+    """With band windows the contact's pair and wall pressures come from the windows
+    (``contact._contact_stress_windows``: the two nearest solids per corner by scatter-min,
+    their gradients by scatter-add), equal to the whole grid's: a pair pressed together, a
+    disc thrown at the bottom wall (walled box) or across the periodic edge, and a free one."""
+    from refmap.contact import Contact, contact_stress
+
+    bnd = PERIODIC if periodic else Boundary()
+    law = NeoHookean(G=10.0, kappa=10.0, rho0=1.0)
+    discs = [((-0.32, 0.0), (0.5, 0.0)), ((0.32, 0.0), (-0.5, 0.0)), ((0.0, -1.67), (0.0, -0.5)),
+             ((1.9 if periodic else 1.5, 1.0), (0.5, 0.0))]
+    solids = tuple(Solid(shape=Disc(center=c, radius=0.3), law=law, velocity=v, name=f"d{k}")
+                   for k, (c, v) in enumerate(discs))
+    out = []
+    for mode in ("grid", "window"):
+        m = Model(Grid(128, 128), solids, bnd, Numerics(solid_storage=mode), body_forces=(Contact(),))
+        assert (m.solid_band_window is not None) == (mode == "window")
+        params = m.default_params()
+        s = jax.jit(m.initial_state)(params)
+        s = jax.jit(lambda s, m=m, p=params: m.run_steps(s, p, 10))(s)
+        c = jax.jit(lambda s, m=m, p=params: contact_stress(m.body_forces[0], m, s, p))(s)
+        out.append((c, jax.jit(lambda s, m=m, p=params: m.run_steps(s, p, 10))(s)))
+    (ca, sa), (cb, sb) = out
+    assert float(jnp.max(ca["Pi"])) > 0.1  # the pair is in contact
+    if not periodic:
+        assert float(jnp.max(ca["Pi_wall"])) > 0.1  # and the disc at the wall
+    for key in ("Pi", "Pi_wall"):
+        np.testing.assert_allclose(np.asarray(cb[key]), np.asarray(ca[key]), rtol=0, atol=1e-12, err_msg=key)
+    for key in ("pair", "wall"):
+        for x, y in zip(ca[key], cb[key], strict=True):
+            np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=0, atol=1e-12, err_msg=key)
+    for f in ("v", "rho_f", "xi", "phi"):
+        ref = np.asarray(getattr(sa, f))
+        np.testing.assert_allclose(np.asarray(getattr(sb, f)), ref, rtol=0,
+                                   atol=1e-11 * max(float(np.max(np.abs(ref))), 1.0), err_msg=f)

@@ -115,8 +115,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from refmap import blend
-from refmap.operators import SYM_PAIRS, div_node
+from refmap import blend, narrowband, windows
+from refmap.operators import SYM_PAIRS, corner_average, div_node
 
 __all__ = [
     "PAIR_COLUMNS_MAX_SOLIDS",
@@ -386,75 +386,248 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     for N < 2).
     """
     d = derived if derived is not None else model.derived(state, params)
+    win = _windows_for(contact, model, d)
+    if win is None:
+        return _contact_stress_grid(contact, model, state, params, d["phic"])
+    origins, fits = win
+
+    def grid(_):
+        # the corner level sets made here, inside the branch: the windowed branch needs
+        # none of the solids' whole-grid fields
+        phip = model.bc.pad_linear(state.phi)[model._core(1)]
+        return _contact_stress_grid(contact, model, state, params, corner_average(phip, model.ndim))
+
+    def windowed(_):
+        return _contact_stress_windows(contact, model, state, params, origins)
+
+    return narrowband.switch(jnp.where(jnp.all(fits), 0, 1), [windowed, grid], None)
+
+
+def _windows_for(contact: Contact, model, d):
+    """``(origins, fits)`` of the solids' band windows this step (``d["band_windows"]``,
+    made by ``Model.derived`` with ``Numerics.solid_storage = "window"``), or None (the
+    whole grid): without them, with fewer than two solids, or when a body's presence does
+    not vanish at ``phi_max h`` (``cutoff = 0``, a very wide ``reach``), because a window
+    leaves out a solid's corners beyond that level."""
+    win = d.get("band_windows")
+    if win is None or model.n_solids < 2:
+        return None
+    phi_max = model.numerics.phi_max * model.h
+    with jax.ensure_compile_time_eval():
+        far = float(_presence(jnp.asarray(0.99 * phi_max), contact, model.h, model.numerics.blend))
+    return win if far == 0.0 else None
+
+
+def _pair_pressure(contact: Contact, model, K, pa, pb, ga, gb):
+    """The pair pressure Pi and its stress components from the two nearest solids' corner
+    level sets ``pa``, ``pb`` and gradients ``ga``, ``gb``."""
+    g = model.grid
+    nd = g.ndim
+    h = model.h
+    cshape = g.shape("corner")
+    kern = model.numerics.blend
+    n_ = [u - w for u, w in zip(ga, gb, strict=True)]  # grad(phi_ab), not normalised
+    nn = n_[0] * n_[0]
+    for c in range(1, nd):
+        nn = nn + n_[c] * n_[c]
+    inv = jnp.where(nn > 1e-12, 1.0 / jnp.where(nn > 1e-12, nn, 1.0), 0.0)
+    Pi = K * _kernel(pa - pb, contact, h) * _presence(pa, contact, h, kern) * _presence(pb, contact, h, kern)
+    # no pair pressure on the corners of non-periodic edges (faces): their push on the
+    # node outside the domain would be lost, and with it the pair's momentum balance
+    edge = np.zeros(cshape, dtype=bool)
+    for axis, periodic in enumerate(model.bc.periodic):
+        if not periodic:
+            for i in (0, -1):
+                sl = [slice(None)] * nd
+                sl[axis] = i
+                edge[tuple(sl)] = True
+    Pi = jnp.where(jnp.asarray(edge), 0.0, Pi)
+    q = Pi * inv  # n (x) n = grad(phi_ab) (x) grad(phi_ab) / |grad(phi_ab)|^2
+    return Pi, tuple(-q * n_[i] * n_[j] for i, j in SYM_PAIRS[nd])
+
+
+def _wall_stress(contact: Contact, model, K, presences, out, zeros):
+    """The wall pressure and stress into ``out``: ``presences(sl, pw)`` is the sum over the
+    solids of ``chi(phi_k) chi(phi_k + 2 phi_w)`` on the corners ``sl`` of a wall's strip,
+    ``pw`` the wall's distance there."""
+    g = model.grid
+    nd = g.ndim
+    h = model.h
+    cshape = g.shape("corner")
+    comps = SYM_PAIRS[nd]
+    walls = wall_distances(model, "corner")
+    if not walls:
+        return
+    z = zeros[0]
+    # the wall pressure is nonzero only within 1.07 width cells of the wall: work on strips
+    # (slabs) of corners along the edges (faces), not on the whole grid
+    if contact.cutoff > 0:
+        reach_w = 0.5 * contact.width * h * math.sqrt(math.log(1.0 / contact.cutoff))
+    else:
+        reach_w = math.inf
+    sw, Pw_total = list(zeros), z
+    for phi_w, w in walls:
+        axis = next(c for c in range(nd) if w[c] != 0.0)
+        spacing = g.spacing[axis]
+        m = min(cshape[axis], int(math.floor(reach_w / spacing)) + 2)
+        low = w[axis] > 0
+        sl = [slice(None)] * nd
+        sl[axis] = slice(0, m) if low else slice(cshape[axis] - m, cshape[axis])
+        sl = tuple(sl)
+        pw = jnp.asarray(phi_w[sl])
+        Pw = K * _kernel(-2.0 * pw, contact, h) * presences(sl, phi_w)
+        # -Pw w (x) w; the zero off-axis products are added too (as the 2D code always
+        # did: bitwise the same results)
+        for k, (i, j) in enumerate(comps):
+            sw[k] = sw[k].at[sl].add(-Pw * w[i] * w[j])
+        Pw_total = Pw_total.at[sl].add(Pw)
+    out.update(Pi_wall=Pw_total, wall=tuple(sw))
+
+
+def _contact_stress_grid(contact: Contact, model, state, params, phic):
+    """:func:`contact_stress` from every solid's corner level sets ``phic`` (S, *corners)
+    on the whole grid."""
     g = model.grid
     nd = g.ndim
     h = model.h
     N = model.n_solids
     cshape = g.shape("corner")
-    comps = SYM_PAIRS[nd]  # the (a, b) of each symmetric component, SYM_COMPONENTS order
     z = jnp.zeros(cshape, dtype=state.v.dtype)
-    zeros = (z,) * len(comps)
+    zeros = (z,) * len(SYM_PAIRS[nd])
     out = dict(Pi=z, Pi_wall=z, pair=zeros, wall=zeros, a=None, b=None)
     if N == 0:
         return out
     K = _stiffness(contact, params)
     kern = model.numerics.blend
-    phic = d["phic"]
     if N >= 2:
         a, b = _two_nearest(phic)
         pa, pb = _take(phic, a), _take(phic, b)
         phip = model.bc.pad_linear(state.phi)[model._core(1)]
         ga = _corner_gradient_of(phip, a, *g.spacing)
         gb = _corner_gradient_of(phip, b, *g.spacing)
-        n_ = [u - w for u, w in zip(ga, gb, strict=True)]  # grad(phi_ab), not normalised
-        nn = n_[0] * n_[0]
-        for c in range(1, nd):
-            nn = nn + n_[c] * n_[c]
-        inv = jnp.where(nn > 1e-12, 1.0 / jnp.where(nn > 1e-12, nn, 1.0), 0.0)
-        Pi = (
-            K * _kernel(pa - pb, contact, h) * _presence(pa, contact, h, kern) * _presence(pb, contact, h, kern)
-        )
-        # no pair pressure on the corners of non-periodic edges (faces): their push on the
-        # node outside the domain would be lost, and with it the pair's momentum balance
-        edge = np.zeros(cshape, dtype=bool)
-        for axis, periodic in enumerate(model.bc.periodic):
-            if not periodic:
-                for i in (0, -1):
-                    sl = [slice(None)] * nd
-                    sl[axis] = i
-                    edge[tuple(sl)] = True
-        Pi = jnp.where(jnp.asarray(edge), 0.0, Pi)
-        q = Pi * inv  # n (x) n = grad(phi_ab) (x) grad(phi_ab) / |grad(phi_ab)|^2
-        out.update(Pi=Pi, a=a, b=b, pair=tuple(-q * n_[i] * n_[j] for i, j in comps))
+        Pi, pair = _pair_pressure(contact, model, K, pa, pb, ga, gb)
+        out.update(Pi=Pi, a=a, b=b, pair=pair)
     if contact.walls:
-        walls = wall_distances(model, "corner")
-        if walls:
-            # the wall pressure is nonzero only within 1.07 width cells of the wall: work on
-            # strips (slabs) of corners along the edges (faces), not on the whole grid
-            if contact.cutoff > 0:
-                reach_w = 0.5 * contact.width * h * math.sqrt(math.log(1.0 / contact.cutoff))
-            else:
-                reach_w = math.inf
-            sw, Pw_total = list(zeros), z
-            for phi_w, w in walls:
-                axis = next(c for c in range(nd) if w[c] != 0.0)
-                spacing = g.spacing[axis]
-                m = min(cshape[axis], int(math.floor(reach_w / spacing)) + 2)
-                low = w[axis] > 0
-                sl = [slice(None)] * nd
-                sl[axis] = slice(0, m) if low else slice(cshape[axis] - m, cshape[axis])
-                sl = tuple(sl)
-                pw = jnp.asarray(phi_w[sl])
-                ph = phic[(slice(None),) + sl]
-                pres = _presence(ph, contact, h, kern) * _presence(ph + 2.0 * pw, contact, h, kern)
-                Pw = K * _kernel(-2.0 * pw, contact, h) * jnp.sum(pres, axis=0)
-                # -Pw w (x) w; the zero off-axis products are added too (as the 2D code
-                # always did: bitwise the same results)
-                for k, (i, j) in enumerate(comps):
-                    sw[k] = sw[k].at[sl].add(-Pw * w[i] * w[j])
-                Pw_total = Pw_total.at[sl].add(Pw)
-            out.update(Pi_wall=Pw_total, wall=tuple(sw))
+        def presences(sl, phi_w):
+            ph = phic[(slice(None),) + sl]
+            pw = jnp.asarray(phi_w[sl])
+            return jnp.sum(_presence(ph, contact, h, kern) * _presence(ph + 2.0 * pw, contact, h, kern), axis=0)
+
+        _wall_stress(contact, model, K, presences, out, zeros)
     return out
+
+
+def _contact_stress_windows(contact: Contact, model, state, params, origins):
+    """:func:`contact_stress` from the solids' band windows (``origins`` (S, d), size
+    ``model.solid_band_window``; ``Numerics.solid_storage = "window"``): every solid's
+    corner level sets and gradients on its window, then at every corner the nearest and
+    second-nearest solid by scatter-min over the windows (the lower index wins a tie, as in
+    :func:`_two_nearest`), their gradients by scatter-add, and the walls' presence sums by
+    scatter-add.  A window holds every corner of its solid below ``phi_max h``; a solid
+    left out at a corner is there at ``phi_max h`` on the grid too, where its presence is
+    zero, so the pressures are the whole grid's."""
+    g = model.grid
+    nd = g.ndim
+    h = model.h
+    N = model.n_solids
+    W = model.solid_band_window
+    per = model.bc.periodic
+    shape = g.shape()
+    cshape = g.shape("corner")
+    K = _stiffness(contact, params)
+    kern = model.numerics.blend
+    far = jnp.asarray(model.numerics.phi_max * h, state.v.dtype)
+    size = tuple(w + 2 for w in W)  # nodes origin - 1 .. origin + W: corners origin .. origin + W
+    phiw = jax.vmap(lambda p, o: windows.gather_ghosted(p, o, size, per, offset=-1))(state.phi, origins)
+    phic = corner_average(phiw, nd)  # (S, W + 1, ...)
+    grads = _corner_gradients(phiw, *g.spacing)
+    # the windows' corners on a grid of n corners along a periodic axis (corner n is corner
+    # 0's copy, appended below) and n + 1 along a walled one
+    base = tuple(n if p else n + 1 for n, p in zip(shape, per, strict=True))
+    idx = windows.index(origins, tuple(w + 1 for w in W), shape, per)
+    k = jnp.arange(N, dtype=jnp.int32).reshape((N,) + (1,) * nd)
+
+    def close(f):  # corner n of a periodic axis from corner 0
+        for a in range(nd):
+            if per[a]:
+                f = jnp.concatenate([f, lax.slice_in_dim(f, 0, 1, axis=a)], axis=a)
+        return f
+
+    def smallest(vals, skip=None):
+        """(value, index) of the smallest of ``vals`` (S, *window) at every corner, the
+        solid ``skip`` (per corner) left out; index N where no window is left."""
+        if skip is not None:
+            vals = jnp.where(k == skip[idx], far, vals)
+        m = jnp.full(base, far, vals.dtype).at[idx].min(vals)
+        pick = vals == m[idx]
+        if skip is not None:
+            pick = pick & (k != skip[idx])
+        i = jnp.full(base, N, jnp.int32).at[idx].min(jnp.where(pick, k, N))
+        return m, i
+
+    out = dict(Pi=None, Pi_wall=None, a=None, b=None)
+    z = jnp.zeros(cshape, dtype=state.v.dtype)
+    zeros = (z,) * len(SYM_PAIRS[nd])
+    out.update(Pi=z, Pi_wall=z, pair=zeros, wall=zeros)
+    stopped = lax.stop_gradient(phic)
+    pa, a = smallest(stopped)
+    pb, b = smallest(stopped, skip=a)
+    a = jnp.where(a == N, 0, a)
+    b = jnp.where(b == N, jnp.where(a == 0, 1, 0), b)
+
+    def of(i):  # the gradient of solid i (per corner)
+        return tuple(close(jnp.zeros(base, state.v.dtype).at[idx].add(jnp.where(k == i[idx], gc, 0.0)))
+                     for gc in grads)
+
+    # the level sets with their derivative (the indices above carry none)
+    pa_d = jnp.full(base, 0.0, phic.dtype).at[idx].add(jnp.where(k == a[idx], phic, 0.0))
+    pb_d = jnp.full(base, 0.0, phic.dtype).at[idx].add(jnp.where(k == b[idx], phic, 0.0))
+    pa = close(jnp.where(jnp.full(base, N, jnp.int32).at[idx].min(jnp.where(k == a[idx], k, N)) == N, far, pa_d))
+    pb = close(jnp.where(jnp.full(base, N, jnp.int32).at[idx].min(jnp.where(k == b[idx], k, N)) == N, far, pb_d))
+    a, b = close(a), close(b)
+    Pi, pair = _pair_pressure(contact, model, K, pa, pb, of(a[tuple(slice(0, n) for n in base)]),
+                              of(b[tuple(slice(0, n) for n in base)]))
+    idx_t = jax.dtypes.canonicalize_dtype(jnp.int64)  # _two_nearest's (argmin's) index type
+    out.update(Pi=Pi, a=a.astype(idx_t), b=b.astype(idx_t), pair=pair)
+    if contact.walls:
+        def presences(sl, phi_w):
+            pw = jnp.asarray(phi_w)  # the wall's distance at every corner
+            pw_w = jax.vmap(lambda o: windows.gather(close_periodic_corners(pw, per), o,
+                                                     tuple(w + 1 for w in W), per))(origins)
+            terms = _presence(phic, contact, h, kern) * _presence(phic + 2.0 * pw_w, contact, h, kern)
+            return close(jnp.zeros(base, phic.dtype).at[idx].add(terms))[sl]
+
+        _wall_stress(contact, model, K, presences, out, zeros)
+    return out
+
+
+def close_periodic_corners(f, periodic):
+    """A corner field (n + 1 corners per axis) cut to n corners along its periodic axes
+    (corner n is corner 0 there), so that a periodic window's corner indices (taken modulo
+    n) read it."""
+    return f[tuple(slice(0, -1) if p else slice(None) for p in periodic)]
+
+
+def _corner_gradients(phip, *spacing):
+    """Every solid's gradient at the corners from its node level set padded with one ghost
+    layer (``phip`` (S, n + 2, ...)): the arithmetic of :func:`_corner_gradient_of`, for all
+    solids at once."""
+    d = len(spacing)
+    nodes = {}
+    for n in range(2**d):
+        off = tuple((n >> a) & 1 for a in range(d))
+        view = tuple(slice(None, -1) if o == 0 else slice(1, None) for o in off)
+        nodes[off] = phip[(slice(None), *view)]
+    out = []
+    for a in range(d):
+        acc = None
+        for off, lo in nodes.items():
+            if off[a] == 1:
+                continue
+            hi = nodes[tuple(1 if b == a else o for b, o in enumerate(off))]
+            acc = hi - lo if acc is None else acc + (hi - lo)
+        out.append(0.5 ** (d - 1) * acc / spacing[a])
+    return tuple(out)
 
 
 def contact_force(contact: Contact, model, state, params, derived=None):

@@ -951,6 +951,10 @@ class Model:
                 s_f, state.rho_f, phip2, xip2, params,
                 lambda: self._solids_full(s_f, state.rho_f, state.phi, phip2[core], xip2[core], params)["mixed"])
         out.update(_stress_keys(s_mix, nd), rho=rho, wf_c=wf_c, wf_n=wf_n, **f)
+        if self.solid_band_window is not None:
+            # where each solid's band window goes this step: the band work and the contact
+            # (refmap.contact) use them
+            out["band_windows"] = self._band_placement(state.phi)
         return out
 
     def _solids_full(self, s_f, rho_f, phi, phip, xip, params):
@@ -1096,7 +1100,15 @@ class Model:
 
         return narrowband.switch(level, [tiled(c) for c in caps] + [dense], None)
 
-    def _band_on_windows(self, xi, phi, vel, dt):
+    def _band_placement(self, phi):
+        """``(origins (S, d), fits)``: the band windows of :meth:`_band_on_windows` placed on
+        the level sets ``phi``, round each solid's nodes with ``phi < phi_max h``."""
+        reach = self.numerics.phi_max * self.h * (1.0 - 1e-9)  # the clipped nodes stay out
+        W = self.solid_band_window
+        return jax.vmap(lambda p: windows.placement(p, reach, W, self.bc.periodic, margin=BAND_WINDOW_MARGIN))(
+            lax.stop_gradient(phi))
+
+    def _band_on_windows(self, xi, phi, vel, dt, placed=None):
         """Steps 1 and 9 of :meth:`step` (map advection, pinning and re-distancing,
         extrapolation and smoothing) on one window of :attr:`solid_band_window` nodes per
         solid, placed round the nodes with ``phi < phi_max h`` (``Numerics.solid_storage =
@@ -1115,9 +1127,7 @@ class Model:
         nd = self.ndim
         shape = g.shape()
         sp = self.spacing
-        reach = n.phi_max * self.h * (1.0 - 1e-9)  # the clipped nodes stay out of the box
-        origins, fits = jax.vmap(lambda p: windows.placement(p, reach, W, per, margin=BAND_WINDOW_MARGIN))(
-            lax.stop_gradient(phi))
+        origins, fits = self._band_placement(phi) if placed is None else placed
         limit = (n.band - 3.0) * self.h
         advect = self._advect
         padded = tuple(w + 4 for w in W)
@@ -1351,7 +1361,7 @@ class Model:
         if self.solid_band_window is not None:
             # steps 1 and 9 below on one window per solid (Numerics.solid_storage "window";
             # no anchors there)
-            xi_new, phi_new = self._band_on_windows(state.xi, state.phi, vq, dt)
+            xi_new, phi_new = self._band_on_windows(state.xi, state.phi, vq, dt, d.get("band_windows"))
         else:
             # 1. reference-map advection inside each solid and the inner part of its band
             # with implicit viscosity the maps move with the updated velocity (symplectic

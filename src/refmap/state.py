@@ -242,7 +242,8 @@ class Numerics:
     the box sized at t = 0, :meth:`refmap.model.Model._initial_solid_window`), instead of
     on its tiles or the whole grid, and so is each solid's band work (map advection,
     pinning and re-distancing, extrapolation and smoothing) on a larger box that holds its
-    nodes with ``phi < phi_max h`` (:meth:`refmap.model.Model._band_on_windows`); a step
+    nodes with ``phi < phi_max h`` (:meth:`refmap.model.Model._band_on_windows`), and the
+    contact's pressures from those boxes (:func:`refmap.contact.contact_stress`); a step
     in which a body has outgrown a box does that part on the whole grid (same results).
     The band work stays on the whole grid for an anchored solid, a solid glued to a wall
     at t = 0, or a body whose box would hold more than half the grid (the rotor).  Steps
