@@ -340,12 +340,19 @@ def _corner_gradient_of(phip, idx, *spacing):
     with one ghost layer: gathers the 2^d nodes around each corner, O(1) per corner, and
     averages the 2^(d-1) differences along each axis.  In 2D, with the nodes BL, BR, TL, TR,
     ``(0.5 ((BR - BL) + (TR - TL)) / dx, 0.5 ((TL - BL) + (TR - BR)) / dy)``."""
+    return _corner_differences(phip, spacing, lambda f: _take(f, idx))
+
+
+def _corner_differences(phip, spacing, pick):
+    """The corner gradient of :func:`_corner_gradient_of` from the 2^d node views of
+    ``phip`` (S, n + 2, ...), each passed through ``pick`` (the nearest solid's values, or
+    every solid's)."""
     d = len(spacing)
     nodes = {}
     for n in range(2**d):  # the first axis varying fastest: BL, BR, TL, TR in 2D
         off = tuple((n >> a) & 1 for a in range(d))
         view = tuple(slice(None, -1) if o == 0 else slice(1, None) for o in off)
-        nodes[off] = _take(phip[(slice(None), *view)], idx)
+        nodes[off] = pick(phip[(slice(None), *view)])
     out = []
     for a in range(d):
         acc = None
@@ -612,22 +619,7 @@ def _corner_gradients(phip, *spacing):
     """Every solid's gradient at the corners from its node level set padded with one ghost
     layer (``phip`` (S, n + 2, ...)): the arithmetic of :func:`_corner_gradient_of`, for all
     solids at once."""
-    d = len(spacing)
-    nodes = {}
-    for n in range(2**d):
-        off = tuple((n >> a) & 1 for a in range(d))
-        view = tuple(slice(None, -1) if o == 0 else slice(1, None) for o in off)
-        nodes[off] = phip[(slice(None), *view)]
-    out = []
-    for a in range(d):
-        acc = None
-        for off, lo in nodes.items():
-            if off[a] == 1:
-                continue
-            hi = nodes[tuple(1 if b == a else o for b, o in enumerate(off))]
-            acc = hi - lo if acc is None else acc + (hi - lo)
-        out.append(0.5 ** (d - 1) * acc / spacing[a])
-    return tuple(out)
+    return _corner_differences(phip, spacing, lambda f: f)
 
 
 def contact_force(contact: Contact, model, state, params, derived=None):

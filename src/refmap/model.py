@@ -403,7 +403,16 @@ class Model:
         n = self.numerics
         if n.solid_storage != "window" or not self.solids:
             return None
-        reach = solid_tiles.cutoff(n.blend, n.blur_width * self.h)
+        ext = self._largest_box(solid_tiles.cutoff(n.blend, n.blur_width * self.h))
+        shape = self.grid.shape()
+        return tuple(
+            min(e + 2 * windows.MARGIN + SOLID_WINDOW_SLACK, m - 1 if p else m)
+            for e, m, p in zip(ext, shape, self.bc.periodic, strict=True)
+        )
+
+    def _largest_box(self, reach):
+        """The largest extent (nodes per axis), over the solids at t = 0, of the box of a
+        solid's nodes with ``phi < reach`` (the shortest box round a periodic axis)."""
         ext = [0] * self.ndim
         for k in range(self.n_solids):
             m = self._phi_t0[k] < reach
@@ -412,11 +421,7 @@ class Model:
                 with jax.ensure_compile_time_eval():
                     length = windows.axis_box(jnp.asarray(line), self.bc.periodic[a])[1]
                 ext[a] = max(ext[a], int(length))
-        shape = self.grid.shape()
-        return tuple(
-            min(e + 2 * windows.MARGIN + SOLID_WINDOW_SLACK, m - 1 if p else m)
-            for e, m, p in zip(ext, shape, self.bc.periodic, strict=True)
-        )
+        return ext
 
     def _initial_solid_band_window(self):
         """``Numerics.solid_storage = "window"``: the static box (nodes per axis) in which each
@@ -435,15 +440,7 @@ class Model:
             return None
         if any(s.anchor is not None for s in self.solids):
             return None
-        reach = n.phi_max * self.h
-        ext = [0] * self.ndim
-        for k in range(self.n_solids):
-            m = self._phi_t0[k] < reach
-            for a in range(self.ndim):
-                line = m.any(axis=tuple(b for b in range(self.ndim) if b != a))
-                with jax.ensure_compile_time_eval():
-                    length = windows.axis_box(jnp.asarray(line), self.bc.periodic[a])[1]
-                ext[a] = max(ext[a], int(length))
+        ext = self._largest_box(n.phi_max * self.h)
         shape = self.grid.shape()
         window = tuple(
             min(e + 2 * BAND_WINDOW_MARGIN + SOLID_WINDOW_SLACK, m - 1 if p else m)
