@@ -572,30 +572,27 @@ def _contact_stress_windows(contact: Contact, model, state, params, origins):
         i = jnp.full(base, N, jnp.int32).at[idx].min(jnp.where(pick, k, N))
         return m, i
 
-    out = dict(Pi=None, Pi_wall=None, a=None, b=None)
     z = jnp.zeros(cshape, dtype=state.v.dtype)
     zeros = (z,) * len(SYM_PAIRS[nd])
-    out.update(Pi=z, Pi_wall=z, pair=zeros, wall=zeros)
+    out = dict(Pi=z, Pi_wall=z, pair=zeros, wall=zeros, a=None, b=None)
     stopped = lax.stop_gradient(phic)
-    pa, a = smallest(stopped)
-    pb, b = smallest(stopped, skip=a)
-    a = jnp.where(a == N, 0, a)
-    b = jnp.where(b == N, jnp.where(a == 0, 1, 0), b)
+    _, a = smallest(stopped)  # N where no window holds the corner
+    _, b = smallest(stopped, skip=a)
 
-    def of(i):  # the gradient of solid i (per corner)
-        return tuple(close(jnp.zeros(base, state.v.dtype).at[idx].add(jnp.where(k == i[idx], gc, 0.0)))
-                     for gc in grads)
+    def of(i, f):  # solid i's values of the window fields f (per corner; 0 where i is N)
+        return close(jnp.zeros(base, f.dtype).at[idx].add(jnp.where(k == i[idx], f, 0.0)))
 
-    # the level sets with their derivative (the indices above carry none)
-    pa_d = jnp.full(base, 0.0, phic.dtype).at[idx].add(jnp.where(k == a[idx], phic, 0.0))
-    pb_d = jnp.full(base, 0.0, phic.dtype).at[idx].add(jnp.where(k == b[idx], phic, 0.0))
-    pa = close(jnp.where(jnp.full(base, N, jnp.int32).at[idx].min(jnp.where(k == a[idx], k, N)) == N, far, pa_d))
-    pb = close(jnp.where(jnp.full(base, N, jnp.int32).at[idx].min(jnp.where(k == b[idx], k, N)) == N, far, pb_d))
-    a, b = close(a), close(b)
-    Pi, pair = _pair_pressure(contact, model, K, pa, pb, of(a[tuple(slice(0, n) for n in base)]),
-                              of(b[tuple(slice(0, n) for n in base)]))
+    # the level sets with their derivative (the indices above carry none); a solid is found
+    # only among the windows that hold the corner, so N means "far" there
+    pa = jnp.where(close(a) == N, far, of(a, phic))
+    pb = jnp.where(close(b) == N, far, of(b, phic))
+    Pi, pair = _pair_pressure(contact, model, K, pa, pb, tuple(of(a, gc) for gc in grads),
+                              tuple(of(b, gc) for gc in grads))
+    # the indices as _two_nearest gives them where every solid is far: 0 and 1 (0 if a is not)
+    a_out = jnp.where(a == N, 0, a)
+    b_out = jnp.where(b == N, jnp.where(a_out == 0, 1, 0), b)
     idx_t = jax.dtypes.canonicalize_dtype(jnp.int64)  # _two_nearest's (argmin's) index type
-    out.update(Pi=Pi, a=a.astype(idx_t), b=b.astype(idx_t), pair=pair)
+    out.update(Pi=Pi, a=close(a_out).astype(idx_t), b=close(b_out).astype(idx_t), pair=pair)
     if contact.walls:
         def presences(sl, phi_w):
             pw = jnp.asarray(phi_w)  # the wall's distance at every corner

@@ -465,8 +465,7 @@ class Model:
         shift = n.advected_band * self.h
         with jax.ensure_compile_time_eval():
             phi = jnp.asarray(self._phi_t0)
-            origins, _ = jax.vmap(lambda p: windows.placement(
-                p, n.phi_max * self.h, window, self.bc.periodic, margin=BAND_WINDOW_MARGIN))(phi)
+            origins, _ = self._band_placement(phi, window)
             phi_w = jax.vmap(lambda p, o: windows.gather(p, o, window, self.bc.periodic))(phi, origins)
             counts = np.asarray(extrapolation.band_tiles(phi_w - shift, n.band * self.h - shift, tile,
                                                          (False,) * nd))
@@ -1097,11 +1096,12 @@ class Model:
 
         return narrowband.switch(level, [tiled(c) for c in caps] + [dense], None)
 
-    def _band_placement(self, phi):
-        """``(origins (S, d), fits)``: the band windows of :meth:`_band_on_windows` placed on
-        the level sets ``phi``, round each solid's nodes with ``phi < phi_max h``."""
+    def _band_placement(self, phi, window=None):
+        """``(origins (S, d), fits)``: the band windows of :meth:`_band_on_windows` (of
+        ``window`` nodes, default :attr:`solid_band_window`) placed on the level sets
+        ``phi``, round each solid's nodes with ``phi < phi_max h``."""
         reach = self.numerics.phi_max * self.h * (1.0 - 1e-9)  # the clipped nodes stay out
-        W = self.solid_band_window
+        W = self.solid_band_window if window is None else window
         return jax.vmap(lambda p: windows.placement(p, reach, W, self.bc.periodic, margin=BAND_WINDOW_MARGIN))(
             lax.stop_gradient(phi))
 
@@ -1130,16 +1130,13 @@ class Model:
         padded = tuple(w + 4 for w in W)
 
         def cut(xi_k, phi_k, o):
-            coords = functools.partial(windows.coordinates, lows=g.lows, spacing=sp, shape=shape,
-                                       periodic=per)
-            X = coords(o, W)  # the nodes gather reads (wrapped round)
+            X = windows.coordinates(o, W, g.lows, sp, shape, per)  # the nodes gather reads
             xi_w = windows.gather(xi_k, o, W, per)
             phi_w = windows.gather(phi_k, o, W, per)
             v_w = windows.gather(vel, o, W, per)
-            # two ghost layers, the map continuous across a periodic edge (xi - x is what
-            # is periodic): as BoundaryConditions.pad_affine on the grid
-            xip = windows.gather_ghosted(xi_k, o, padded, per, offset=-2)
-            xip = (xip - coords(o, padded, offset=-2)) + coords(o, padded, offset=-2, wrap=False)
+            # two ghost layers, the map continuous across a periodic edge: as
+            # BoundaryConditions.pad_affine on the grid
+            xip = solid_tiles.cut_map(xi_k, o, padded, g.lows, sp, per, offset=-2)
             xi_w = jnp.where(phi_w < limit, xi_w + dt * advect(xip, v_w, *sp), xi_w)
             return xi_w, phi_w, X
 

@@ -291,17 +291,23 @@ def cut_windows(phi, xi, origins, window, lows, spacing, periodic):
     ``origin - 1 .. origin + W + 1`` of each solid's window, ghosts beyond a wall the linear
     ones of ``pad_linear`` / ``pad_affine`` (:func:`refmap.windows.gather_ghosted`), the map
     made continuous across a periodic edge (``xi - x`` is what is periodic)."""
-    nd = len(window)
-    shape = phi.shape[-nd:]
     size = tuple(w + 3 for w in window)
 
     def one(phi_k, xi_k, o):
-        X = functools.partial(windows.coordinates, o, size, lows, spacing, shape, periodic, offset=-1)
-        xiw = windows.gather_ghosted(xi_k, o, size, periodic, offset=-1)
         return (windows.gather_ghosted(phi_k, o, size, periodic, offset=-1),
-                (xiw - X()) + X(wrap=False))
+                cut_map(xi_k, o, size, lows, spacing, periodic, offset=-1))
 
     return jax.vmap(one)(phi, xi, origins)
+
+
+def cut_map(xi, origin, size, lows, spacing, periodic, offset: int = 0):
+    """One solid's map ``xi`` (d, *grid) on the window's nodes ``origin + offset ..``
+    (:func:`refmap.windows.gather_ghosted`: linear ghosts past a wall, as ``pad_affine``'s),
+    made continuous across a periodic edge: ``xi - x`` is what is periodic, so the wrapped
+    node's ``xi - x`` plus the unwrapped coordinates."""
+    shape = xi.shape[-len(size):]
+    X = functools.partial(windows.coordinates, origin, size, lows, spacing, shape, periodic, offset=offset)
+    return (windows.gather_ghosted(xi, origin, size, periodic, offset=offset) - X()) + X(wrap=False)
 
 
 def mixed_from_windows(s_f, rho_f, phiw, xiw, spacing, origins, window, periodic, laws, rho0,
@@ -338,4 +344,4 @@ def mixed_from_windows(s_f, rho_f, phiw, xiw, spacing, origins, window, periodic
 
 
 __all__ = ["ERF_ZERO", "Listed", "advect_maps", "blend_contributions", "cutoff", "gather",
-           "cut_windows", "mix", "mixed_from_windows", "mixed_on_windows", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
+           "cut_map", "cut_windows", "mix", "mixed_from_windows", "mixed_on_windows", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
