@@ -156,17 +156,42 @@ BAND_CASES = {
 }
 
 
+def _perturbed(m, s):
+    """``s`` with a strain added to every map (on the grid; back in the model's storage)."""
+    g = m.on_grid(s)
+    X, Y = (jnp.asarray(a) for a in m.grid.mesh("node"))
+    q = jnp.pi / 2
+    g = g.replace(xi=g.xi + jnp.stack([0.04 * jnp.sin(q * Y) * jnp.cos(q * X), 0.03 * jnp.sin(q * X)])[None])
+    return m.adopt(g)
+
+
+def _assert_same_on_grid(a, b, model, atol=1e-11):
+    """The whole-grid fields of states ``a`` and ``b`` equal to ``atol`` of each field's
+    scale; the maps inside the bands only (the windows leave the identity map outside them,
+    the whole grid stale values that no phase reads)."""
+    a, b = model.on_grid(a), model.on_grid(b)
+    band = np.asarray(a.phi) < model.numerics.phi_max * model.h * (1 - 1e-9)
+    for f in ("v", "rho_f", "xi", "phi"):
+        ref, got = np.asarray(getattr(a, f)), np.asarray(getattr(b, f))
+        if f == "xi":
+            keep = np.broadcast_to(band[:, None], ref.shape)
+            ref, got = np.where(keep, ref, 0.0), np.where(keep, got, 0.0)
+        scale = max(float(np.max(np.abs(ref))), 1.0)
+        np.testing.assert_allclose(got, ref, rtol=0, atol=atol * scale, err_msg=f)
+
+
 @pytest.mark.parametrize("name", sorted(BAND_CASES))
-def test_band_work_on_windows_steps_as_the_whole_grid(name, monkeypatch):
-    """``solid_storage = "window"`` also runs each solid's map advection, pinning,
-    re-distancing, extrapolation and smoothing on a window round its nodes with
-    ``phi < phi_max h`` (``Model._band_on_windows``).  Outside it the grid's phases change
-    nothing either, so 30 steps equal the whole grid's (``band_sweeps = "grid"``) to
-    round-off, with bodies across a periodic edge and corner (the window wraps and the map
-    is made continuous in it) and next to a wall (the window's ghosts are the grid's linear
-    ones); a window too small for the bodies falls back on the whole grid.  (Round-off can
-    flip an ENO stencil choice where two differences tie, which moves a map by
-    ~dt h^3 |d^3 xi|; not seen in these runs, whose differences stay at 1e-13.)"""
+def test_solids_stored_in_windows_step_as_the_whole_grid(name, monkeypatch):
+    """``solid_storage = "window"`` stores each solid's map and level set in a window that
+    follows its body (``State.origin``) and runs the map advection, pinning,
+    re-distancing, extrapolation and smoothing, the stress and blend there.  Outside the
+    band the grid's phases change nothing either, so 30 steps equal the whole grid's
+    (``band_sweeps = "grid"``) to round-off, with bodies across a periodic edge and corner
+    (the window wraps and the map is made continuous in it) and next to a wall (the
+    window's ghosts are the grid's linear ones), the band swept on its tiles in the window
+    or over the whole window.  (Round-off can flip an ENO stencil choice where two
+    differences tie, which moves a map by ~dt h^3 |d^3 xi|; not seen in these runs, whose
+    differences stay at 1e-13.)"""
     import dataclasses
 
     boundary, centers, gravity = BAND_CASES[name]
@@ -182,34 +207,65 @@ def test_band_work_on_windows_steps_as_the_whole_grid(name, monkeypatch):
                     dataclasses.replace(base.numerics, solid_storage="window", band_sweeps="band"))
     whole = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, solid_storage="window"))
     assert not win.bc._glue
-    assert win.solid_band_window is not None and base.solid_band_window is None
+    assert win.state_window is not None and base.state_window is None
     assert win._band_window_tiles is not None and whole._band_window_tiles is None
-    assert all(w < n for w, n in zip(win.solid_band_window, base.grid.shape(), strict=True))
-    small = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, solid_storage="window"))
-    small.solid_band_window = (30, 30)  # less than a body's phi < phi_max h box: falls back
+    assert all(w < n for w, n in zip(win.state_window, base.grid.shape(), strict=True))
     out = []
-    for m in (base, win, whole, small):
-        s = jax.jit(m.initial_state)(params)
-        X, Y = (jnp.asarray(a) for a in m.grid.mesh("node"))
-        q = jnp.pi / 2
-        s = s.replace(xi=s.xi + jnp.stack([0.04 * jnp.sin(q * Y) * jnp.cos(q * X), 0.03 * jnp.sin(q * X)])[None])
+    for m in (base, win, whole):
+        s = _perturbed(m, jax.jit(m.initial_state)(params))
+        assert (s.origin is not None) == (m is not base)
+        if m is not base:
+            assert s.xi.shape[2:] == m.state_window and s.phi.shape[1:] == m.state_window
         out.append(jax.jit(lambda s, m=m: m.run_steps(s, params, 30))(s))
-    a, b = out[:2]
-    for f in ("v", "rho_f", "xi", "phi"):
-        ref = np.asarray(getattr(a, f))
-        scale = max(float(np.max(np.abs(ref))), 1.0)
-        for other in out[1:]:
-            np.testing.assert_allclose(np.asarray(getattr(other, f)), ref, rtol=0, atol=1e-11 * scale,
-                                       err_msg=f)
+    a, b, c = out
+    for other in (b, c):
+        _assert_same_on_grid(a, other, win)
     assert float(jnp.max(jnp.abs(a.v))) > 1e-3  # the bodies move
-    # the windowed branch was taken (the last state's boxes fit), the small one's was not
-    reach = win.numerics.phi_max * win.h * (1 - 1e-9)
-    for m, expect in ((win, True), (small, False)):
-        _, fits = jax.vmap(lambda p, m=m: windows.placement(
-            p, reach, m.solid_band_window, m.bc.periodic, margin=model_module.BAND_WINDOW_MARGIN))(b.phi)
-        assert bool(jnp.all(fits)) == expect
-    # the bodies' maps changed inside their windows (the windows are written back)
-    assert float(jnp.max(jnp.abs(b.xi - jnp.asarray(win._xi0)))) > 1e-3
+    assert bool(jnp.all(b.origin >= 0)) and bool(jnp.all(c.origin >= 0))  # every body fits
+    # the windows followed the bodies (the drift moves them by several cells)
+    s0 = win.initial_state(params)
+    assert int(jnp.max(jnp.abs(b.origin - s0.origin))) >= 1
+    # the bodies' maps changed inside their bands
+    g = win.on_grid(b)
+    band = np.asarray(g.phi) < 0
+    assert float(np.max(np.abs(np.where(band[:, None], np.asarray(g.xi) - win._xi0, 0.0)))) > 1e-3
+
+
+def test_a_window_too_small_for_a_body_is_refused_and_a_body_that_outgrows_it_stops_the_run(tmp_path):
+    """A window that does not hold a body's band (with its margins) is refused with the
+    solid's name; a body whose band comes to the edge of its window during a run stops the
+    run with a message that names it and the way out, keeping the frames written."""
+    import dataclasses
+
+    from refmap.scenarios_fssi import suspension
+    from refmap.simulation import Simulation, SimulationBlowUp
+
+    base = _model(Boundary(), [(0.0, 0.0)], n=96)
+    m = Model(base.grid, base.solids, Boundary(), dataclasses.replace(base.numerics, solid_storage="window"))
+    params = m.default_params()
+    s = m.on_grid(m.initial_state(params))
+    m.state_window = (30, 30)
+    with pytest.raises(ValueError, match=r"solid\(s\) \['d0'\]: the band does not fit the window of \(30, 30\)"):
+        m.to_windows(s)
+
+    case = suspension(128, count=4)
+    case = case.replace(numerics=dataclasses.replace(case.numerics, solid_storage="window"),
+                        t_end=0.02, frames=2)
+    sim = Simulation(case, tmp_path / "run", progress=False, pictures=False)
+    assert sim.model.state_window is not None
+    follow = windows.follow
+
+    def outgrown(*args, **kw):  # every body's band reaches its window's edge
+        o, fits = follow(*args, **kw)
+        return o, fits & jnp.zeros((), bool)
+
+    import unittest.mock as mock
+
+    with mock.patch.object(model_module.windows, "follow", outgrown), \
+            pytest.raises(SimulationBlowUp, match=r"stopped at step 1, t = .*the band of solid 'disc0 .*' no longer "
+                                                  r"fits the window of \d+ x \d+ nodes.*solid_storage = 'grid'"):
+        sim.run()
+    assert (tmp_path / "run" / "frames" / "frame_00000.h5").is_file()
 
 
 def test_band_windows_are_not_used_with_anchors_glue_or_large_bodies():
@@ -252,9 +308,12 @@ def test_contact_on_windows_equals_the_grid(periodic):
     solids = tuple(Solid(shape=Disc(center=c, radius=0.3), law=law, velocity=v, name=f"d{k}")
                    for k, (c, v) in enumerate(discs))
     out = []
+    models = []
     for mode in ("grid", "window"):
         m = Model(Grid(128, 128), solids, bnd, Numerics(solid_storage=mode), body_forces=(Contact(),))
         assert (m.solid_band_window is not None) == (mode == "window")
+        assert (m.state_window is not None) == (mode == "window")
+        models.append(m)
         params = m.default_params()
         s = jax.jit(m.initial_state)(params)
         s = jax.jit(lambda s, m=m, p=params: m.run_steps(s, p, 10))(s)
@@ -269,7 +328,4 @@ def test_contact_on_windows_equals_the_grid(periodic):
     for key in ("pair", "wall"):
         for x, y in zip(ca[key], cb[key], strict=True):
             np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=0, atol=1e-12, err_msg=key)
-    for f in ("v", "rho_f", "xi", "phi"):
-        ref = np.asarray(getattr(sa, f))
-        np.testing.assert_allclose(np.asarray(getattr(sb, f)), ref, rtol=0,
-                                   atol=1e-11 * max(float(np.max(np.abs(ref))), 1.0), err_msg=f)
+    _assert_same_on_grid(sa, sb, models[1])

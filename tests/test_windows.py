@@ -244,3 +244,78 @@ def test_put_writes_only_the_window():
     out = np.asarray(windows.put(f, vals, jnp.asarray((8, 7)), (True, True)))
     assert out.sum() == 24
     assert out[:, [8, 9, 0, 1]][:, :, [7, 8, 0]].min() == 1.0
+
+
+@pytest.mark.parametrize("o", [(0, 0), (12, 10), (0, 5), (12, 3), (4, 10)])
+def test_ghosted_window_reads_the_walls_ghosts(o):
+    """A window stored on its own, given ghost layers by ``ghosted``, holds at a side it
+    shares with a wall the ghosts ``gather_ghosted`` reads from the grid (those of
+    ``pad_linear``), bit for bit, edges and corners; inside it the window's values."""
+    rng = np.random.default_rng(5)
+    f = jnp.asarray(rng.normal(size=(2, 20, 17)))
+    W = (8, 7)
+    per = (False, False)
+    o = jnp.asarray(o)
+    w = windows.gather(f, o, W, per)
+    got = np.asarray(windows.ghosted(w, 1, 2, 2))
+    ref = np.asarray(windows.gather_ghosted(f, o, (W[0] + 3, W[1] + 3), per, offset=-1))
+    assert got.shape == ref.shape == (2, 11, 10)
+    np.testing.assert_array_equal(got[:, 1:-2, 1:-2], np.asarray(w))
+    # the nodes whose every index lies in the window or past a wall it shares
+    trusted = []
+    for a, (n, w) in enumerate(((20, 8), (17, 7))):
+        u = np.arange(-1, w + 2)
+        lo_wall, hi_wall = int(o[a]) == 0, int(o[a]) + w == n
+        trusted.append(((u >= 0) | lo_wall) & ((u < w) | hi_wall))
+    mask = np.broadcast_to((trusted[0][:, None] & trusted[1][None, :])[None], got.shape)
+    np.testing.assert_array_equal(got[mask], ref[mask])
+    assert mask.sum() > 2 * 8 * 7 or not any(int(c) in (0, 12, 10) for c in o)  # some ghosts compared
+    # a window's affine field stays affine in its ghosts (any side)
+    X, Y = np.meshgrid(np.arange(8.0), np.arange(7.0), indexing="ij")
+    aff = jnp.asarray(2.0 * X - 0.5 * Y + 1.0)
+    u = np.arange(-1, 10.0)
+    v = np.arange(-1, 9.0)
+    U, V = np.meshgrid(u, v, indexing="ij")
+    np.testing.assert_allclose(np.asarray(windows.ghosted(aff, 1, 2, 2)), 2.0 * U - 0.5 * V + 1.0, atol=1e-13)
+
+
+@pytest.mark.parametrize("periodic", [(True, True), (False, False), (True, False)])
+@pytest.mark.parametrize("center", [(0.5, 0.5), (0.02, 0.5), (0.98, 0.03), (0.6, 0.97)])
+def test_follow_places_a_window_as_placement_does(periodic, center):
+    """``follow`` finds from a body's window alone the origin ``placement`` finds from the
+    whole grid, for a disc anywhere (periodic edges and corners, walls), starting from a
+    window that holds it a few nodes off centre; it reports a band that touches a side of
+    the old window inside the grid (it may reach past it) or does not fit the new one."""
+    shape, h, reach, window = (50, 50), 1.0 / 50, 0.05, (24, 24)
+    phi = jnp.asarray(_disc_phi(shape, h, center, 0.1, periodic))
+    origin, fits = windows.placement(phi, reach, window, periodic, margin=2)
+    assert bool(fits)
+    for shift in ((0, 0), (2, -1), (-2, 2)):
+        old = origin + jnp.asarray(shift)
+        old = jnp.asarray([o % n if p else min(max(int(o), 0), n - w)
+                           for o, n, w, p in zip(old, shape, window, periodic, strict=True)])
+        phi_w = windows.gather(phi, old, window, periodic)
+        new, ok = windows.follow(phi_w, old, reach, shape, periodic, margin=2)
+        # the old window holds the whole band, off its sides inside the grid (else the
+        # band may go on past it, which follow must report)
+        inside = np.zeros(shape, bool)
+        inside[_np_index(np.asarray(old), window, shape, periodic)] = True
+        band = np.asarray(phi) <= reach
+        held = not (band & ~inside).any()
+        w_band = np.asarray(phi_w) <= reach
+        for a in range(2):
+            line = w_band.any(axis=1 - a)
+            lo_inner = periodic[a] or int(old[a]) > 0
+            hi_inner = periodic[a] or int(old[a]) + window[a] < shape[a]
+            held &= not ((lo_inner and line[0]) or (hi_inner and line[-1]))
+        assert bool(ok) == held
+        if held:
+            np.testing.assert_array_equal(np.asarray(new), np.asarray(origin))
+    # a window that cuts the band on a side inside the grid: not fit (the body may reach past it)
+    big = jnp.asarray(_disc_phi(shape, h, (0.5, 0.5), 0.15, periodic))
+    old = jnp.asarray((20, 13))
+    _, ok = windows.follow(windows.gather(big, old, window, periodic), old, reach, shape, periodic, margin=2)
+    assert not bool(ok)
+    # no node within reach: nothing to follow
+    _, ok = windows.follow(jnp.ones(window), old, reach, shape, periodic)
+    assert not bool(ok)

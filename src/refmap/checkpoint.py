@@ -107,6 +107,8 @@ def save_checkpoint(run_dir, state, sim_info: dict) -> Path:
         arrays[name] = np.asarray(getattr(state, name))
     if getattr(state, "p", None) is not None:  # the incompressible fluid's pressure
         arrays["p"] = np.asarray(state.p)
+    if getattr(state, "origin", None) is not None:  # solids stored in windows
+        arrays["origin"] = np.asarray(state.origin)
     info = dict(sim_info)
     info["format"] = FORMAT
     info["saved"] = datetime.now(UTC).isoformat(timespec="seconds")
@@ -158,6 +160,8 @@ def _read(path: Path):
         arrays = {name: np.asarray(f["state"][name][()]) for name in STATE_FIELDS}
         if "p" in f["state"]:  # written since 2026-12-06 for incompressible runs
             arrays["p"] = np.asarray(f["state"]["p"][()])
+        if "origin" in f["state"]:  # solids stored in windows (written since 2026-12-07)
+            arrays["origin"] = np.asarray(f["state"]["origin"][()])
     import jax.numpy as jnp
 
     state = State(**{k: jnp.asarray(v) for k, v in arrays.items()})

@@ -394,9 +394,17 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     """
     d = derived if derived is not None else model.derived(state, params)
     win = _windows_for(contact, model, d)
+    if win is None and model.windowed(state):
+        # solids stored in windows but the contact not on them (one solid, or a presence
+        # that reaches past phi_max h): their level sets on the whole grid
+        state = model.on_grid(state)
+        phip = model.bc.pad_linear(state.phi)[model._core(1)]
+        return _contact_stress_grid(contact, model, state, params, corner_average(phip, model.ndim))
     if win is None:
         return _contact_stress_grid(contact, model, state, params, d["phic"])
     origins, fits = win
+    if model.windowed(state):  # the solids stored in windows: no whole-grid level sets
+        return _contact_stress_windows(contact, model, state, params, jnp.maximum(origins, 0))
 
     def grid(_):
         # the corner level sets made here, inside the branch: the windowed branch needs
@@ -545,7 +553,10 @@ def _contact_stress_windows(contact: Contact, model, state, params, origins):
     kern = model.numerics.blend
     far = jnp.asarray(model.numerics.phi_max * h, state.v.dtype)
     size = tuple(w + 2 for w in W)  # nodes origin - 1 .. origin + W: corners origin .. origin + W
-    phiw = jax.vmap(lambda p, o: windows.gather_ghosted(p, o, size, per, offset=-1))(state.phi, origins)
+    if model.windowed(state):  # the windows themselves, one linear ghost layer round them
+        phiw = jax.vmap(lambda p: windows.ghosted(p, 1, 1, nd))(state.phi)
+    else:
+        phiw = jax.vmap(lambda p, o: windows.gather_ghosted(p, o, size, per, offset=-1))(state.phi, origins)
     phic = corner_average(phiw, nd)  # (S, W + 1, ...)
     grads = _corner_gradients(phiw, *g.spacing)
     # the windows' corners on a grid of n corners along a periodic axis (corner n is corner
@@ -674,6 +685,8 @@ def contact_diagnostics(
       crossed it; +inf if none.
     """
     contact = contact if contact is not None else Contact()
+    if model.windowed(state):  # solids stored in windows: these numbers read the grid's
+        state, derived = model.on_grid(state), None
     g = model.grid
     nd = g.ndim
     dA = g.cell_area if nd == 2 else g.cell_volume  # the cell's d-dimensional measure

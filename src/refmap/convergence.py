@@ -175,7 +175,8 @@ def load_rung(path) -> dict:
     return out
 
 
-def _state_arrays(state) -> dict:
+def _state_arrays(state, model) -> dict:
+    state = model.on_grid(state)  # solids stored in windows: the rung holds grid fields
     out = {k: np.asarray(getattr(state, k)) for k in ("t", "step", "v", "rho_f", "xi", "phi")}
     if state.p is not None:  # the incompressible fluid's pressure (State.p)
         out["p"] = np.asarray(state.p)
@@ -257,6 +258,7 @@ def run_rung(
             phi=jnp.asarray(z["phi"]),
             p=jnp.asarray(z["p"]) if "p" in z else None,
         )
+        state = model.adopt(state)
         first, steps, wall0 = int(h["chunks_done"]), int(h["steps"]), float(h["wall_s"])
         log(
             f"[{scenario} n={n}] continuing from t = {float(z['t']):.4g} (chunk {first}/{n_chunks})"
@@ -296,7 +298,7 @@ def run_rung(
             _atomic_savez(
                 partial,
                 {**header, "chunks_done": done, "steps": steps, "wall_s": wall},
-                _state_arrays(state),
+                _state_arrays(state, model),
             )
             last_save = now
         if done % max(1, n_chunks // 10) == 0 or done == n_chunks:
@@ -315,7 +317,7 @@ def run_rung(
     _atomic_savez(
         final,
         {**header, "steps": steps, "wall_s": wall, "refmap": __version__, "t": float(state.t)},
-        _state_arrays(state),
+        _state_arrays(state, model),
     )
     if partial.exists():
         partial.unlink()

@@ -357,6 +357,7 @@ class Model:
         self.solid_tiles = self._initial_solid_tiles()
         self.solid_window = self._initial_solid_window()
         self.solid_band_window = self._initial_solid_band_window()
+        self.state_window = self._initial_state_window()
 
     def _initial_solid_tiles(self):
         """``(tile, blend capacities, stress capacities)`` for computing each solid's
@@ -450,6 +451,20 @@ class Model:
             return None
         self._band_window_tiles = self._initial_band_window_tiles(window)
         return window
+
+    def _initial_state_window(self):
+        """The window in which each solid's map and level set are stored (``State.xi``
+        ``(S, d, *W)``, ``State.phi`` ``(S, *W)``, ``State.origin``): the band window
+        :attr:`solid_band_window`, or None (stored on the whole grid) where that is None or
+        the step reads a solid's whole-grid fields: the incompressible fluid (the volume
+        correction's J and fractions), ``band_force = "solid"``, ``fluid_mass =
+        "conserved"`` (the new fluid fractions on the grid)."""
+        n = self.numerics
+        if self.solid_band_window is None or self.projection is not None:
+            return None
+        if n.band_force == "solid" or n.fluid_mass == "conserved":
+            return None
+        return self.solid_band_window
 
     def _initial_band_window_tiles(self, window):
         """``(tile, (tight, capacity))``: the extrapolation and smoothing on each band
@@ -777,7 +792,7 @@ class Model:
             for k, s in enumerate(self.solids):
                 v = v + ws[k][None] * self._vec(s.velocity)
         rho_f = jnp.full(shape, params.fluid.rho0, dtype=jnp.float64)
-        return State(
+        return self.to_windows(State(
             t=jnp.asarray(0.0, dtype=jnp.float64),
             step=jnp.asarray(0, dtype=jnp.int64),
             v=v,
@@ -785,7 +800,70 @@ class Model:
             xi=xi,
             phi=phi,
             p=jnp.zeros(shape, dtype=jnp.float64) if self.projection is not None else None,
-        )
+        ))
+
+    # ------------------------------------------------------------------ window storage
+    def windowed(self, state: State) -> bool:
+        """Whether ``state`` stores its solids in windows (``State.origin`` set)."""
+        return state.origin is not None
+
+    def to_windows(self, state: State) -> State:
+        """``state`` with its solids' maps and level sets cut to the windows of
+        :attr:`state_window` (placed on each body's band, as each step places them); the
+        state itself when the model stores them on the grid or it already has windows.
+        ValueError (outside ``jit``) when a body's band does not fit its window."""
+        if self.state_window is None or self.windowed(state):
+            return state
+        W = self.state_window
+        per = self.bc.periodic
+        origins, fits = self._band_placement(state.phi, W)
+        if not isinstance(fits, jax.core.Tracer) and not bool(np.all(np.asarray(fits))):
+            bad = [self.solids[k].name for k in np.flatnonzero(~np.asarray(fits))]
+            raise ValueError(
+                f"solid(s) {bad}: the band does not fit the window of {W} nodes "
+                "(Numerics.solid_storage = 'window' sizes it from t = 0); use solid_storage = 'grid'")
+        cut = jax.vmap(lambda f, o: windows.gather(f, o, W, per))
+        return state.replace(xi=cut(state.xi, origins), phi=cut(state.phi, origins), origin=origins)
+
+    def adopt(self, state: State) -> State:
+        """``state`` in this model's storage of the solids: on the whole grid, or in windows
+        of :attr:`state_window` (a state stored otherwise, e.g. a checkpoint or frame of a
+        run with the other ``solid_storage``, is converted; a windowed state of the right
+        window size is returned as it is)."""
+        if self.state_window is None:
+            return self.on_grid(state)
+        if self.windowed(state) and tuple(state.phi.shape[1:]) == tuple(self.state_window):
+            return state
+        return self.to_windows(self.on_grid(state))
+
+    def on_grid(self, state: State) -> State:
+        """``state`` with its solids on the whole grid (the state itself when it is): each
+        window's values where it lies, ``phi_max h`` (far) and the identity map ``xi = x``
+        elsewhere.  Output, diagnostics and post-processing read this."""
+        if not self.windowed(state):
+            return state
+        per = self.bc.periodic
+        shape = self.grid.shape()
+        far = self.numerics.phi_max * self.h
+        X = jnp.asarray(self.grid.mesh("node"))
+        ok = jnp.all(state.origin >= 0, axis=1)
+        o = jnp.maximum(state.origin, 0)
+        phi = jax.vmap(lambda p, oo: windows.to_grid(p, oo, shape, per, far))(state.phi, o)
+        xi = jax.vmap(lambda x, oo: windows.put(X, x, oo, per))(state.xi, o)
+        # a body that outgrew its window (origin -1): no values to show
+        phi = jnp.where(ok.reshape((-1,) + (1,) * self.ndim), phi, jnp.nan)
+        return state.replace(xi=xi, phi=phi, origin=None)
+
+    def _window_maps(self, xi_w, origin, before: int, after: int):
+        """A solid's map on its window (``(d, *W)``) made continuous across a periodic edge
+        (``xi - x`` is what is periodic: the wrapped node's ``xi - x`` plus the unwrapped
+        coordinates) with ``before`` and ``after`` linear ghost layers
+        (:func:`refmap.windows.ghosted`; at a wall those of ``pad_affine``)."""
+        W = xi_w.shape[1:]
+        g = self.grid
+        X = functools.partial(windows.coordinates, origin, W, g.lows, self.spacing, g.shape(), self.bc.periodic)
+        cont = xi_w if not any(self.bc.periodic) else (xi_w - X()) + X(wrap=False)
+        return windows.ghosted(cont, before, after, self.ndim)
 
     def default_params(self, fluid: FluidParams | None = None, gravity=None) -> Params:
         if gravity is None:
@@ -927,6 +1005,15 @@ class Model:
                        wf_c=jnp.ones_like(p), wf_n=jnp.ones_like(state.rho_f))
             return out
 
+        if self.windowed(state):
+            # the solids stored in windows (Numerics.solid_storage "window"): the mixed
+            # fields from the windows themselves, no solid's field on the whole grid (the
+            # per-solid fields of diagnostics and output come from on_grid(state))
+            s_mix, rho, wf_c, wf_n = self._mixed_on_state_windows(s_f, state, params)
+            out.update(_stress_keys(s_mix, nd), rho=rho, wf_c=wf_c, wf_n=wf_n,
+                       band_windows=(state.origin, jnp.all(state.origin >= 0, axis=1)))
+            return out
+
         # two ghost layers, as the map advection of the step pads them (one pad for both);
         # the tiles read them in place, the full-grid fields from one layer
         phip2 = bc.pad_linear(state.phi)
@@ -1023,6 +1110,22 @@ class Model:
 
         flat = narrowband.switch(jnp.where(jnp.all(fits), 0, 1), [win, dense], None)
         return _unpack_mixed(flat, len(s_f), self.grid.shape())
+
+    def _mixed_on_state_windows(self, s_f, state, params):
+        """The mixed stress components, density and fluid fractions of :meth:`derived`
+        from the windows in which the solids are stored (:attr:`state_window`):
+        :func:`refmap.solid_tiles.mixed_from_windows` on each window with one ghost layer
+        before it and two after (:func:`refmap.windows.ghosted`), the map continuous in it.
+        The window holds every node within the blend's reach (``cutoff = phi_max h`` by
+        default) with a margin, so nothing is left out."""
+        nd = self.ndim
+        o = jnp.maximum(state.origin, 0)
+        phiw = jax.vmap(lambda p: windows.ghosted(p, 1, 2, nd))(state.phi)
+        xiw = jax.vmap(lambda x, oo: self._window_maps(x, oo, 1, 2))(state.xi, o)
+        rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=state.rho_f.dtype) for law in params.laws])
+        return solid_tiles.mixed_from_windows(
+            s_f, state.rho_f, phiw, xiw, self.spacing, o, self.state_window, self.bc.periodic,
+            params.laws, rho0, _solid_stresses, self.h, self.numerics, self.grid.shape())
 
     def _mixed_on_tiles(self, s_f, rho_f, phip, xip, params, full):
         """The mixed stress components, density and fluid fractions of :meth:`derived`
@@ -1153,6 +1256,50 @@ class Model:
             return self.extrapolate(xi_new, phi_new), phi_new
 
         return narrowband.switch(jnp.where(jnp.all(fits), 0, 1), [win, dense], None)
+
+    def _band_on_state_windows(self, state: State, vel, dt):
+        """Steps 1 and 9 of :meth:`step` on the windows in which the solids are stored
+        (:attr:`state_window`): the work of :meth:`_band_on_windows` without a gather or a
+        write-back, then each window moved to where :func:`refmap.windows.placement` puts
+        it round the new level set (:func:`refmap.windows.follow`), the nodes that enter it
+        taking the far level set ``phi_max h`` and the identity map (beyond the band: no
+        phase reads them).  A body whose band no longer fits its window gets the origin -1
+        (:meth:`advance` stops there and says so)."""
+        n = self.numerics
+        W = self.state_window
+        per = self.bc.periodic
+        g = self.grid
+        nd = self.ndim
+        shape = g.shape()
+        sp = self.spacing
+        limit = (n.band - 3.0) * self.h
+        advect = self._advect
+        o = jnp.maximum(state.origin, 0)
+
+        def advect_one(xi_k, phi_k, oo):
+            v_w = windows.gather(vel, oo, W, per)
+            xip = self._window_maps(xi_k, oo, 2, 2)
+            return jnp.where(phi_k < limit, xi_k + dt * advect(xip, v_w, *sp), xi_k)
+
+        xi_w = jax.vmap(advect_one)(state.xi, state.phi, o)
+        phi_w = self.pin(state.phi, xi_w, dt, periodic=(False,) * nd)
+        X = jax.vmap(lambda oo: windows.coordinates(oo, W, g.lows, sp, shape, per))(o)
+        xi_w = self._extend_all(xi_w - X, phi_w, windowed=True) + X
+
+        reach = n.phi_max * self.h * (1.0 - 1e-9)  # as _band_placement
+        new, fits = jax.vmap(lambda p, oo: windows.follow(p, oo, reach, shape, per, margin=BAND_WINDOW_MARGIN))(
+            lax.stop_gradient(phi_w), o)
+        far = jnp.asarray(n.phi_max * self.h, phi_w.dtype)
+
+        def move(xi_k, phi_k, old, oo):
+            kept = windows.shift(jnp.ones(W, phi_k.dtype), old, oo, shape, per, 0.0) > 0.5
+            X_new = windows.coordinates(oo, W, g.lows, sp, shape, per)
+            xi_k = jnp.where(kept, windows.shift(xi_k, old, oo, shape, per, 0.0), X_new)
+            return xi_k, windows.shift(phi_k, old, oo, shape, per, far)
+
+        xi_w, phi_w = jax.vmap(move)(xi_w, phi_w, o, new)
+        ok = jnp.all(state.origin >= 0, axis=1) & fits
+        return xi_w, phi_w, jnp.where(ok[:, None], new, -1)
 
     def conserve_fluid_mass(self, rho_f, wf_old, rho_new, phi_new):
         """``rho_new`` shifted so that the fluid's mass ``sum(w_f rho_f)`` is the one before
@@ -1352,7 +1499,12 @@ class Model:
         if self.n_solids == 0:
             return done(state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new))
 
-        if self.solid_band_window is not None:
+        origin_new = state.origin
+        if self.windowed(state):
+            # steps 1 and 9 below on the windows in which the solids are stored, which then
+            # follow their bodies
+            xi_new, phi_new, origin_new = self._band_on_state_windows(state, vq, dt)
+        elif self.solid_band_window is not None:
             # steps 1 and 9 below on one window per solid (Numerics.solid_storage "window";
             # no anchors there)
             xi_new, phi_new = self._band_on_windows(state.xi, state.phi, vq, dt, d.get("band_windows"))
@@ -1378,7 +1530,7 @@ class Model:
         if n.fluid_mass == "conserved" and self.projection is None:
             rho_new = self.conserve_fluid_mass(rho_f, d["wf_n"], rho_new, phi_new)
         return done(state.replace(t=t + dt, step=state.step + 1, v=v_new, rho_f=rho_new, xi=xi_new,
-                                  phi=phi_new))
+                                  phi=phi_new, origin=origin_new))
 
     def solver_keys(self) -> tuple:
         """The step's linear solves that :meth:`advance` warm-starts: ``"viscous"`` with
@@ -1444,6 +1596,8 @@ class Model:
                 v2 = v2 + s2.v[a] ** 2
             speed = jnp.sqrt(jnp.max(v2))
             ok2 = finite(s2) & (dt > 1e-14) & ~(speed > speed_limit)
+            if s2.origin is not None:  # a body outgrew its window (solid_storage "window")
+                ok2 = ok2 & jnp.all(s2.origin >= 0)
             # report the last full step (the landing step is only a remainder)
             keep = short & (k > 0)
             dt_rep = jnp.where(keep, dt_last, dt)
@@ -1504,6 +1658,7 @@ class Model:
 
         ``solve``: the :meth:`frame_pressure` of this state, ``(p, info)``, when the caller
         has it (incompressible fluid; solved here otherwise)."""
+        state = self.on_grid(state)
         g = self.grid
         nd = self.ndim
         dA = g.cell_area if nd == 2 else g.cell_volume  # "area" below is the d-dim. measure
@@ -1584,6 +1739,7 @@ class Model:
         out = {}
         if not self.n_solids:
             return out
+        state = self.on_grid(state)
         diag = self.diagnostics(state, params)
         per = diag["solids"]
 
@@ -1628,6 +1784,7 @@ class Model:
     def output_fields(self, state: State, params: Params, solve=None):
         """Fields written to each frame (numpy-convertible), with physical names.
         ``solve`` as in :meth:`diagnostics`."""
+        state = self.on_grid(state)
         d = self.derived(state, params)
         p_fluid = params.fluid.lambda_f * (state.rho_f / params.fluid.rho0 - 1.0)
         pressure = self._mean_pressure(d)
@@ -1704,8 +1861,12 @@ def _check_closed(boundary: Boundary) -> None:
 
 
 def check_finite_fields(state: State) -> list[str]:
-    """Names of prognostic fields holding non-finite values (host-side helper)."""
+    """Names of prognostic fields holding non-finite values (host-side helper); also
+    ``"origin"`` when a solid's band outgrew the window it is stored in
+    (``Numerics.solid_storage = "window"``)."""
     bad = []
+    if state.origin is not None and not np.all(np.asarray(state.origin) >= 0):
+        bad.append("origin")
     for name in ("v", "rho_f", "xi", "phi"):
         a = np.asarray(getattr(state, name))
         if not np.all(np.isfinite(a)):

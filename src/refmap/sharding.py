@@ -82,12 +82,17 @@ def make_mesh(n_devices: int, nx: int | None = None) -> Mesh:
     return Mesh(np.asarray(jax.devices()[:n_devices]), (AXIS,))
 
 
-def state_shardings(mesh: Mesh, pressure: bool = False) -> State:
+def state_shardings(mesh: Mesh, pressure: bool = False, windows: bool = False) -> State:
     """A State of NamedShardings: fields split along the grid's x axis, scalars replicated.
-    ``pressure``: the state carries the incompressible fluid's pressure (``State.p``)."""
+    ``pressure``: the state carries the incompressible fluid's pressure (``State.p``);
+    ``windows``: its solids are stored in windows (``State.origin``; ``Numerics.solid_storage
+    = "window"``), which are small and replicated."""
     def ns(*spec):
         return NamedSharding(mesh, P(*spec))
 
+    if windows:
+        return State(t=ns(), step=ns(), v=ns(None, AXIS), rho_f=ns(AXIS), xi=ns(), phi=ns(),
+                     p=ns(AXIS) if pressure else None, origin=ns())
     return State(t=ns(), step=ns(), v=ns(None, AXIS), rho_f=ns(AXIS),
                  xi=ns(None, None, AXIS), phi=ns(None, AXIS), p=ns(AXIS) if pressure else None)
 
@@ -112,7 +117,7 @@ def shard_state(state: State, devices) -> State:
     by the count (ValueError otherwise, before anything is placed)."""
     nx = int(np.shape(state.rho_f)[0])
     mesh = _mesh_for(devices, nx)
-    return jax.device_put(state, state_shardings(mesh, state.p is not None))
+    return jax.device_put(state, state_shardings(mesh, state.p is not None, state.origin is not None))
 
 
 def gather_state(state: State) -> State:
@@ -133,7 +138,7 @@ def sharded_advance(model, devices, max_steps: int = 10**9):
         return model.advance(state, params, t_target, max_steps=max_steps, speed_limit=speed_limit)
 
     # a sharding given for a whole sub-tree (params, info) applies to all its leaves
-    ss = state_shardings(mesh, model.projection is not None)
+    ss = state_shardings(mesh, model.projection is not None, model.state_window is not None)
     jitted = jax.jit(run, in_shardings=(ss, rep, rep, rep), out_shardings=(ss, rep))
 
     def advance(state, params, t_target, speed_limit=jnp.inf):
@@ -149,7 +154,7 @@ def sharded_run_steps(model, devices, n_steps: int, dt=None):
     """:meth:`Model.run_steps` compiled for sharded states: ``run(state, params) -> state``."""
     mesh = _mesh_for(devices, model.grid.nx)
     rep = replicated(mesh)
-    ss = state_shardings(mesh, model.projection is not None)
+    ss = state_shardings(mesh, model.projection is not None, model.state_window is not None)
     return jax.jit(lambda s, p: model.run_steps(s, p, n_steps, dt=dt),
                    in_shardings=(ss, rep), out_shardings=ss)
 

@@ -436,10 +436,11 @@ class Simulation:
         nd, gshape = g.ndim, g.shape()
         want = {"v": (nd, *gshape), "rho_f": gshape, "xi": (sim.model.n_solids, nd, *gshape),
                 "phi": (sim.model.n_solids, *gshape)}
+        on_grid = sim.model.on_grid(state) if state.origin is not None else state  # solids in windows
         for name, shape in want.items():
-            if tuple(getattr(state, name).shape) != shape:
+            if tuple(getattr(on_grid, name).shape) != shape:
                 raise CheckpointError(
-                    f"checkpoint field {name} has shape {tuple(getattr(state, name).shape)}, the case "
+                    f"checkpoint field {name} has shape {tuple(getattr(on_grid, name).shape)}, the case "
                     f"needs {shape}")
         from refmap.checkpoint import case_toml
 
@@ -452,7 +453,7 @@ class Simulation:
             warnings.warn(f"resuming {run_dir} with other versions than it was checkpointed with "
                           f"({'; '.join(changed)}): the continuation may differ from an uninterrupted run",
                           UserWarning, stacklevel=2)
-        state = _with_pressure(state, sim.model)
+        state = sim.model.adopt(_with_pressure(state, sim.model))
         sim._versions, sim._case_toml = now, case_toml(case)
         sim._resume_from = dict(info, state=state, frame_times=schedule)
         return sim
@@ -559,13 +560,16 @@ class Simulation:
                    f"{case.grid.nx}, only for a solid whose deformation is under-resolved)")
         return out
 
-    def _stop(self, bad, what, writer, written_note=False, info=None):
+    def _stop(self, bad, what, writer, written_note=False, info=None, advice=True):
         step, t = int(bad.step), float(bad.t)
-        msg = f"simulation '{self.case.name}' blew up at step {step}, t = {t:.6g}: {what}"
+        msg = f"simulation '{self.case.name}' {'blew up' if advice else 'stopped'} at step {step}, t = {t:.6g}: {what}"
         if info is not None:
             msg += (f" (last dt = {float(info['dt']):.3e}, limited by "
                     f"{LIMIT_NAMES[int(info['limit'])]})")
-        msg += ". Likely causes: " + "; or ".join(self._advice()) + "."
+        if advice:
+            msg += ". Likely causes: " + "; or ".join(self._advice()) + "."
+        else:
+            msg += "."
         if writer is not None:
             writer.close()
             done = self._done
@@ -575,6 +579,15 @@ class Simulation:
         raise SimulationBlowUp(msg)
 
     def _blow_up(self, bad, good, info, writer):
+        if bad.origin is not None and not np.all(np.asarray(bad.origin) >= 0):
+            # a body outgrew the window its map and level set are stored in
+            lost = np.flatnonzero(np.any(np.asarray(bad.origin) < 0, axis=1))
+            names = ", ".join(repr(self.model.solids[k].name) for k in lost)
+            self._stop(bad, f"the band of solid {names} no longer fits the window of "
+                       f"{' x '.join(str(w) for w in self.model.state_window)} nodes it is stored in "
+                       "(numerics solid_storage = 'window' sizes the windows from the bodies at "
+                       "t = 0, with room for moving but little for growing); run it with "
+                       "solid_storage = 'grid'", writer, info=info, advice=False)
         fields = check_finite_fields(bad)
         if fields:
             what = f"non-finite {', '.join(fields)}"
@@ -676,6 +689,11 @@ def _check_start_state(state, case: Case, model):
 
     if not isinstance(state, State):
         bad(f"must be a refmap.state.State, got {type(state).__name__}")
+    if state.origin is not None:  # solids stored in windows (solid_storage "window")
+        try:
+            state = model.on_grid(state)
+        except Exception as e:  # noqa: BLE001 - anything unreadable is a bad value
+            bad(f"its solids' windows cannot be read ({type(e).__name__}: {e})")
     g = case.grid
     n = model.n_solids
     nd, gshape = g.ndim, g.shape()
@@ -718,9 +736,9 @@ def _check_start_state(state, case: Case, model):
         warnings.warn(f"case {case.name!r}: the run starts from the given state, so "
                       f"case.initial_velocity ({case.initial_velocity!r}) is not used",
                       UserWarning, stacklevel=3)
-    return _with_pressure(
+    return model.adopt(_with_pressure(
         State(t=jnp.asarray(t, dtype=jnp.float64), step=jnp.asarray(int(step), dtype=jnp.int64),
-              **{k: jnp.asarray(a, dtype=jnp.float64) for k, a in arrays.items()}), model)
+              **{k: jnp.asarray(a, dtype=jnp.float64) for k, a in arrays.items()}), model))
 
 
 def _with_pressure(state, model):

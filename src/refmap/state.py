@@ -57,6 +57,12 @@ class State:
     #: None for the compressible fluid (its pressure is a function of rho_f) and for a
     #: state made without it (the step is then the non-incremental projection)
     p: jax.Array | None = None
+    #: ``Numerics.solid_storage = "window"``: the lower corner (S, d) int32 of the window in
+    #: which each solid's map ``xi`` (S, d, *W) and level set ``phi`` (S, *W) are stored
+    #: (:attr:`refmap.model.Model.state_window`, docs/design_windows.md); -1 on every axis
+    #: once a body's band outgrew its window.  None: the maps and level sets are stored on
+    #: the whole grid.
+    origin: jax.Array | None = None
 
     def replace(self, **kw) -> State:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -68,7 +74,7 @@ class State:
         return self.xi.shape[0]
 
 
-_register(State, ["t", "step", "v", "rho_f", "xi", "phi", "p"])
+_register(State, ["t", "step", "v", "rho_f", "xi", "phi", "p", "origin"])
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,11 @@ windowed phase shares; it knows nothing of reference maps or stresses:
   the exact transpose of :func:`gather`, tested by the adjoint identity);
 * :func:`shift`: a window's values moved to a new origin (a body that travelled), the
   nodes that enter the window taking ``fill``;
-* :func:`to_grid`: a window's values on the whole grid, ``fill`` outside (output files).
+* :func:`to_grid`: a window's values on the whole grid, ``fill`` outside (output files);
+* :func:`ghosted`: a window's values with linear ghost layers (a window stored on its
+  own, without the grid round it); :func:`follow`: :func:`placement` from a window's own
+  level set (a window that moves with its body); :func:`offset_in`: one window's place
+  in another.
 
 Every function works on the last ``d = len(W)`` axes of its arrays and on one window; use
 ``jax.vmap`` over bodies (the origins ``(S, d)`` with them).  On a non-periodic axis a window
@@ -190,6 +194,75 @@ def to_grid(values, origin, shape, periodic, fill):
     check(window, shape, periodic)
     base = jnp.full(values.shape[:-d] + tuple(shape), fill, values.dtype)
     return base.at[(Ellipsis,) + index(origin, window, shape, periodic)].set(values)
+
+
+def ghosted(values, before: int, after: int, d: int):
+    """A window's values (``(..., *window)``, the last ``d`` axes) with ``before`` and
+    ``after`` ghost layers on each axis, the linear extrapolation of the two nodes next to
+    each edge, axis after axis: the arithmetic of :func:`gather_ghosted`, so that at a
+    window's side that lies on a wall the ghosts are the grid's (``pad_linear``'s) bit for
+    bit.  At a side inside the grid the nodes past the window are beyond its body's band
+    (the windows keep a margin), where no phase reads a value that matters."""
+    out = values
+    for a in range(d):
+        ax = out.ndim - d + a
+        w = out.shape[ax]
+        u = jnp.arange(-before, w + after, dtype=jnp.int32)
+        inside = jnp.take(out, jnp.clip(u, 0, w - 1), axis=ax)
+        f0, f1, e0, e1 = (lax.index_in_dim(out, i, axis=ax) for i in (0, 1, w - 1, w - 2))
+        bshape = (1,) * ax + (u.shape[0],) + (1,) * (out.ndim - ax - 1)
+        uf = u.astype(out.dtype).reshape(bshape)
+        m = uf - (w - 1)
+        low = (1 - uf) * f0 + uf * f1
+        high = (1 + m) * e0 - m * e1
+        out = jnp.where((u < 0).reshape(bshape), low, jnp.where((u > w - 1).reshape(bshape), high, inside))
+    return out
+
+
+def follow(phi_w, origin, reach, shape, periodic, margin: int = MARGIN):
+    """``(origin (d,) int32, fits bool)``: where :func:`placement` puts a window of the
+    size of ``phi_w`` (a body's level set on its window at ``origin``) on the grid of
+    ``shape``, found from the window alone: the box of the window's nodes with ``phi <=
+    reach``, centred as :func:`placement` centres the grid's box (the same origin when the
+    window holds every such node).  ``fits``: that box with ``margin`` nodes to spare lies
+    in the new window, and it does not touch a side of the old window that is inside the
+    grid (the body might reach past it, unseen)."""
+    window = phi_w.shape
+    d = len(window)
+    m = phi_w <= reach
+    new, fits = [], jnp.any(m)
+    for a in range(d):
+        n, w = shape[a], window[a]
+        line = jnp.any(m, axis=tuple(b for b in range(d) if b != a))
+        lo_w, length = axis_box(line, False)
+        edge_lo = periodic[a] | (origin[a] > 0)  # the old window's sides inside the grid
+        edge_hi = periodic[a] | (origin[a] + w < n)
+        fits = fits & ~(edge_lo & (lo_w == 0)) & ~(edge_hi & (lo_w + length == w))
+        start = origin[a] + lo_w
+        if periodic[a]:
+            o = (start + length // 2 - w // 2) % n
+            lo = (start - o) % n
+            fits = fits & (lo >= margin) & (lo + length <= w - margin)
+        else:
+            lo, hi = start, start + length - 1
+            o = jnp.clip((lo + hi + 1) // 2 - w // 2, 0, n - w)
+            fits = fits & ((lo - margin >= o) | (o == 0)) & ((hi + margin <= o + w - 1) | (o + w == n))
+        new.append(jnp.asarray(o, jnp.int32))
+    return jnp.stack(new), fits
+
+
+def offset_in(origin, inner, shape, periodic):
+    """``inner - origin`` per axis (``(d,)`` int32), the position of a window at ``inner``
+    inside one at ``origin``: modulo the node count on a periodic axis (the shortest way
+    round)."""
+    out = []
+    for a in range(len(shape)):
+        r = inner[a] - origin[a]
+        if periodic[a]:
+            n = shape[a]
+            r = (r + n // 2) % n - n // 2
+        out.append(r)
+    return jnp.stack(out).astype(jnp.int32)
 
 
 def _circular_box(line):
