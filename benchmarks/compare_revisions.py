@@ -37,6 +37,8 @@ Usage::
     python benchmarks/compare_revisions.py 94dddff HEAD                 # 128^2 and 256^2
     python benchmarks/compare_revisions.py 94dddff . --sizes 128 --counts 1,10
     python benchmarks/compare_revisions.py main HEAD --large --counts 1,10,100
+    python benchmarks/compare_revisions.py 9ff03f0 . --no-rotor --sizes 300 --counts 1,10,100 \
+        --new-storage window      # the per-body windows against the old default
 
 Prints one table row per case and figure: old | new | new/old.
 """
@@ -61,7 +63,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # the same thread pool
 SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
-# measured in the tree's own process; CASE, N, SIZE, STEPS, REPS, FIXED, WARM are prepended
+# measured in the tree's own process; CASE, N, SIZE, STEPS, REPS, FIXED, WARM, STORAGE are
+# prepended
 _MEASURE = r"""
 import json, time
 from dataclasses import replace
@@ -89,6 +92,8 @@ def build():
     numerics = Numerics()
     if FIXED:
         numerics = replace(numerics, fixed_smooth_sweeps=numerics.smooth_max_sweeps)
+    if STORAGE != "grid":  # only passed to a tree that has it (--new-storage)
+        numerics = replace(numerics, solid_storage=STORAGE)
     solids = _lattice_of_discs(N, NeoHookean(G=10.0, kappa=10.0))
     model = Model(Grid(SIZE, SIZE), solids, Boundary(), numerics=numerics, body_forces=(Contact(),))
     return model, model.default_params(gravity=(0.0, -0.2))
@@ -150,9 +155,9 @@ def _command() -> list[str]:
 
 
 def measure(tree: Path, case: str, n_solids: int, size: int, steps: int, reps: int,
-            fixed: bool, warm: float = 0.0) -> dict:
+            fixed: bool, warm: float = 0.0, storage: str = "grid") -> dict:
     head = (f"CASE = {case!r}\nN = {n_solids}\nSIZE = {size}\nSTEPS = {steps}\nREPS = {reps}\n"
-            f"FIXED = {fixed!r}\nWARM = {warm!r}\n")
+            f"FIXED = {fixed!r}\nWARM = {warm!r}\nSTORAGE = {storage!r}\n")
     env = dict(os.environ, PYTHONPATH=str(tree / "src"), XLA_FLAGS=SINGLE_THREAD,
                OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     r = subprocess.run(_command() + ["-c", head + _MEASURE], cwd=tree, env=env,
@@ -194,6 +199,9 @@ def main(argv=None) -> int:
     ap.add_argument("--warm-up", type=float, default=0.0,
                     help="simulated time to advance (adaptive dt) before timing, so that the "
                          "bodies have deformed (with --adaptive: the smoothing's real cost)")
+    ap.add_argument("--new-storage", choices=("grid", "window"), default="grid",
+                    help="Numerics.solid_storage of the new tree's disc cases (the old tree keeps "
+                         "its default): 'window' compares the per-body windows with the old code")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     a = ap.parse_args(argv)
     sizes = [int(s) for s in a.sizes.split(",") if s.strip()]
@@ -222,8 +230,9 @@ def main(argv=None) -> int:
                         order = ("old", "new") if r % 2 == 0 else ("new", "old")
                         for label in order:
                             tree = trees[0 if label == "old" else 1][0]
+                            storage = a.new_storage if label == "new" and case != "rotor" else "grid"
                             runs[label].append(measure(tree, case, N, size, a.steps, a.reps,
-                                                       not a.adaptive, a.warm_up))
+                                                       not a.adaptive, a.warm_up, storage))
                             print(f"  {key}: {label} round {r + 1} "
                                   f"{runs[label][-1]['step_ms']:.2f} ms/step", file=sys.stderr,
                                   flush=True)
@@ -239,7 +248,8 @@ def main(argv=None) -> int:
     print(f"old = {trees[0][1]}, new = {trees[1][1]}; {a.steps} steps x best of {a.reps} calls "
           f"x best of {a.rounds} processes; smoothing: "
           f"{'adaptive' if a.adaptive else 'fixed 80 sweeps'}"
-          + (f", timed after t = {a.warm_up:g}" if a.warm_up > 0 else ""))
+          + (f", timed after t = {a.warm_up:g}" if a.warm_up > 0 else "")
+          + (f"; new tree's discs with solid_storage = {a.new_storage!r}" if a.new_storage != "grid" else ""))
     print(f"{'case':16s} {'figure':16s} {'old':>10s} {'new':>10s} {'new/old':>8s}")
     for key, r in res.items():
         for name, title, fmt in FIGURES:

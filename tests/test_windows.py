@@ -319,3 +319,33 @@ def test_follow_places_a_window_as_placement_does(periodic, center):
     # no node within reach: nothing to follow
     _, ok = windows.follow(jnp.ones(window), old, reach, shape, periodic)
     assert not bool(ok)
+
+
+@pytest.mark.parametrize("periodic", [(True, True), (False, False), (True, False)])
+def test_accumulate_equals_the_scatters(periodic):
+    """``accumulate`` (one window after the other, by dynamic slices) gives the values of
+    the XLA scatters it replaces: overlapping windows summed (``scatter_add_many``) or
+    their smallest kept, windows wrapping round periodic edges and corners, values past a
+    wall dropped; with a leading axis of components; integers for the minimum."""
+    rng = np.random.default_rng(11)
+    shape, size = (20, 17), (9, 8)
+    origins = jnp.asarray([[0, 0], [15, 12], [5, 3], [11, 9], [3, 14]])
+    if not periodic[0]:
+        origins = origins.at[:, 0].set(jnp.minimum(origins[:, 0], shape[0] - size[0] + 1))
+    if not periodic[1]:
+        origins = origins.at[:, 1].set(jnp.minimum(origins[:, 1], shape[1] - size[1] + 1))
+    vals = jnp.asarray(rng.normal(size=(5, 3) + size))
+    base = jnp.asarray(rng.normal(size=(3,) + shape))
+    idx = windows.index(origins, size, shape, periodic)
+    ref = base.at[(slice(None),) + idx].add(jnp.moveaxis(vals, 0, 1), mode="drop")
+    got = windows.accumulate(base, vals, origins, periodic, "add")
+    np.testing.assert_allclose(np.asarray(got), np.asarray(ref), rtol=0, atol=1e-14)
+    ref = base[0].at[idx].min(vals[:, 0], mode="drop")
+    got = windows.accumulate(base[0], vals[:, 0], origins, periodic, "min")
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(ref))
+    k = jnp.asarray(rng.integers(0, 9, size=(5,) + size), jnp.int32)
+    ref = jnp.full(shape, 9, jnp.int32).at[idx].min(k, mode="drop")
+    np.testing.assert_array_equal(np.asarray(windows.accumulate(jnp.full(shape, 9, jnp.int32), k, origins,
+                                                                periodic, "min")), np.asarray(ref))
+    with pytest.raises(ValueError, match="op must be 'add' or 'min', got 'max'"):
+        windows.accumulate(base, vals, origins, periodic, "max")

@@ -400,8 +400,8 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
         state = model.on_grid(state)
         phip = model.bc.pad_linear(state.phi)[model._core(1)]
         return _contact_stress_grid(contact, model, state, params, corner_average(phip, model.ndim))
-    if win is None:
-        return _contact_stress_grid(contact, model, state, params, d["phic"])
+    if win is None:  # (no "phic" without solids: nothing to touch)
+        return _contact_stress_grid(contact, model, state, params, d.get("phic"))
     origins, fits = win
     if model.windowed(state):  # the solids stored in windows: no whole-grid level sets
         return _contact_stress_windows(contact, model, state, params, jnp.maximum(origins, 0))
@@ -562,8 +562,10 @@ def _contact_stress_windows(contact: Contact, model, state, params, origins):
     # the windows' corners on a grid of n corners along a periodic axis (corner n is corner
     # 0's copy, appended below) and n + 1 along a walled one
     base = tuple(n if p else n + 1 for n, p in zip(shape, per, strict=True))
-    idx = windows.index(origins, tuple(w + 1 for w in W), shape, per)
     k = jnp.arange(N, dtype=jnp.int32).reshape((N,) + (1,) * nd)
+
+    def at(f):  # every window's values of the corner field f (on the windows' base grid)
+        return windows.blocks(f, origins, tuple(w + 1 for w in W), per)
 
     def close(f):  # corner n of a periodic axis from corner 0
         for a in range(nd):
@@ -575,12 +577,13 @@ def _contact_stress_windows(contact: Contact, model, state, params, origins):
         """(value, index) of the smallest of ``vals`` (S, *window) at every corner, the
         solid ``skip`` (per corner) left out; index N where no window is left."""
         if skip is not None:
-            vals = jnp.where(k == skip[idx], far, vals)
-        m = jnp.full(base, far, vals.dtype).at[idx].min(vals)
-        pick = vals == m[idx]
+            vals = jnp.where(k == at(skip), far, vals)
+        m = windows.accumulate(jnp.full(base, far, vals.dtype), vals, origins, per, "min")
+        pick = vals == at(m)
         if skip is not None:
-            pick = pick & (k != skip[idx])
-        i = jnp.full(base, N, jnp.int32).at[idx].min(jnp.where(pick, k, N))
+            pick = pick & (k != at(skip))
+        i = windows.accumulate(jnp.full(base, N, jnp.int32), jnp.where(pick, k, N).astype(jnp.int32),
+                               origins, per, "min")
         return m, i
 
     z = jnp.zeros(cshape, dtype=state.v.dtype)
@@ -591,7 +594,7 @@ def _contact_stress_windows(contact: Contact, model, state, params, origins):
     _, b = smallest(stopped, skip=a)
 
     def of(i, f):  # solid i's values of the window fields f (per corner; 0 where i is N)
-        return close(jnp.zeros(base, f.dtype).at[idx].add(jnp.where(k == i[idx], f, 0.0)))
+        return close(windows.accumulate(jnp.zeros(base, f.dtype), jnp.where(k == at(i), f, 0.0), origins, per))
 
     # the level sets with their derivative (the indices above carry none); a solid is found
     # only among the windows that hold the corner, so N means "far" there
@@ -605,12 +608,13 @@ def _contact_stress_windows(contact: Contact, model, state, params, origins):
     idx_t = jax.dtypes.canonicalize_dtype(jnp.int64)  # _two_nearest's (argmin's) index type
     out.update(Pi=Pi, a=close(a_out).astype(idx_t), b=close(b_out).astype(idx_t), pair=pair)
     if contact.walls:
+        own = _presence(phic, contact, h, kern)  # the same for every wall
+
         def presences(sl, phi_w):
             pw = jnp.asarray(phi_w)  # the wall's distance at every corner
-            pw_w = jax.vmap(lambda o: windows.gather(close_periodic_corners(pw, per), o,
-                                                     tuple(w + 1 for w in W), per))(origins)
-            terms = _presence(phic, contact, h, kern) * _presence(phic + 2.0 * pw_w, contact, h, kern)
-            return close(jnp.zeros(base, phic.dtype).at[idx].add(terms))[sl]
+            pw_w = at(close_periodic_corners(pw, per))
+            terms = own * _presence(phic + 2.0 * pw_w, contact, h, kern)
+            return close(windows.accumulate(jnp.zeros(base, phic.dtype), terms, origins, per))[sl]
 
         _wall_stress(contact, model, K, presences, out, zeros)
     return out

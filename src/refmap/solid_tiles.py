@@ -321,19 +321,19 @@ def mixed_from_windows(s_f, rho_f, phiw, xiw, spacing, origins, window, periodic
     xiw = xiw[:, None]
     wc, wn = blend_contributions(phiw, rho0, h, numerics)  # (S, 1, C, W + 1, ...)
     sig, drho = stress_contributions(phiw, xiw, laws, stress_fn, h, spacing, numerics)
-    # corners and nodes origin .. origin + W: one index serves both (corner n of a periodic
-    # axis is corner 0's copy, set below; past a walled edge the scatter drops them)
-    place_at = windows.index(origins, tuple(w + 1 for w in window), nshape, periodic)
+    # corners and nodes origin .. origin + W, summed window after window
+    # (windows.accumulate): a periodic axis wraps at n (corner n is corner 0's copy,
+    # appended below), past a walled edge the values are dropped
 
     def place(values, shape_out, corner):
         """Sum (S, 1, C, W + 1, ...) into (C, *shape_out) at each solid's origin."""
-        out = jnp.zeros((values.shape[2],) + tuple(shape_out), values.dtype)
-        out = out.at[(slice(None),) + place_at].add(jnp.moveaxis(values[:, 0], 1, 0), mode="drop")
+        base = tuple(n if p else m for n, m, p in zip(nshape, shape_out, periodic, strict=True))
+        out = windows.accumulate(jnp.zeros((values.shape[2],) + base, values.dtype), values[:, 0],
+                                 origins, periodic)
         if corner:
             for a in range(nd):
                 if periodic[a]:
-                    first = lax.index_in_dim(out, 0, axis=1 + a, keepdims=True)
-                    out = lax.dynamic_update_index_in_dim(out, first, nshape[a], axis=1 + a)
+                    out = jnp.concatenate([out, lax.slice_in_dim(out, 0, 1, axis=1 + a)], axis=1 + a)
         return out
 
     Tc = place(wc, cshape, True)[0]

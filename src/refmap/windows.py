@@ -34,6 +34,7 @@ measure.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 
@@ -162,6 +163,78 @@ def scatter_add_many(grid_field, values, origins, periodic):
     # advanced indices on the last d axes: the result's axes are (..., S, *window)
     idx = index(origins, window, shape, periodic)
     return grid_field.at[(Ellipsis,) + idx].add(jnp.moveaxis(values, 0, lead))
+
+
+def blocks(field, origins, size, periodic):
+    """Every window's values of ``field`` (``(..., *grid)``): ``(S, ..., *size)`` for the
+    ``origins`` ``(S, d)``, wrapping round a periodic axis (a window on a walled axis must lie
+    on the grid).  The values of :func:`gather` at each origin, read as one slice per window
+    (a block gather: whole rows copied) instead of one index per value; the transpose of
+    :func:`accumulate`'s sum."""
+    origins = jnp.asarray(origins).astype(jnp.int32)
+    d = len(size)
+    lead = field.ndim - d
+    padded = field
+    for a in range(d):
+        ax = lead + a
+        n = field.shape[ax]
+        if periodic[a]:
+            if size[a] > n:
+                raise ValueError(f"a window of {size[a]} nodes on a periodic axis of {n}")
+            padded = jnp.concatenate([padded, lax.slice_in_dim(padded, 0, size[a], axis=ax)], axis=ax)
+    shape = field.shape[:lead] + tuple(size)
+    zero = (jnp.int32(0),) * lead
+    return jax.vmap(lambda o: lax.dynamic_slice(padded, zero + tuple(o[a] for a in range(d)), shape))(origins)
+
+
+def accumulate(base, values, origins, periodic, op: str = "add"):
+    """``base`` (``(..., *grid)``) with every window of ``values`` (``(S, ..., *size)``, the
+    axes after ``S`` those of ``base``) combined into it at its origin (``origins`` ``(S,
+    d)``): ``op = "add"`` sums overlapping windows, ``"min"`` keeps the smallest.  A window
+    wraps round a periodic axis; past a walled edge its values are dropped.
+
+    The windows are visited one after the other (``lax.fori_loop``), each a
+    ``dynamic_slice`` and a ``dynamic_update_slice`` of a box of the grid padded by one
+    window's size at the far side of every axis, whose padding is then folded back onto
+    the start of a periodic axis (or dropped at a wall).  The same values as
+    :func:`scatter_add_many` and ``.at[].min`` (up to the order of additions where windows
+    overlap), but an XLA scatter with one index per value costs about ten times more on a
+    CPU (100 windows of 60^2 at 300^2: ~10 against ~1 ms)."""
+    origins = jnp.asarray(origins).astype(jnp.int32)
+    S, d = origins.shape
+    size = values.shape[-d:]
+    shape = base.shape[-d:]
+    lead = base.ndim - d
+    if values.shape[1:-d] != base.shape[:lead]:
+        raise ValueError(f"windows {values.shape} do not fit a field of shape {base.shape}")
+    if op == "add":
+        combine, neutral = jnp.add, 0
+    elif op == "min":
+        combine, neutral = jnp.minimum, (jnp.inf if jnp.issubdtype(base.dtype, jnp.floating)
+                                         else jnp.iinfo(base.dtype).max)
+    else:
+        raise ValueError(f"op must be 'add' or 'min', got {op!r}")
+    padded = jnp.pad(base, [(0, 0)] * lead + [(0, w) for w in size], constant_values=neutral)
+
+    def body(k, acc):
+        start = (jnp.int32(0),) * lead + tuple(origins[k, a] for a in range(d))
+        cur = lax.dynamic_slice(acc, start, values.shape[1:])
+        return lax.dynamic_update_slice(acc, combine(cur, values[k]), start)
+
+    acc = lax.fori_loop(0, S, body, padded)
+    for a in range(d):
+        ax = lead + a
+        n, w = shape[a], size[a]
+        core = lax.slice_in_dim(acc, 0, n, axis=ax)
+        if periodic[a]:  # fold the part past the edge back onto the start, w nodes at most
+            tail = lax.slice_in_dim(acc, n, n + w, axis=ax)
+            m = min(w, n)
+            head = combine(lax.slice_in_dim(core, 0, m, axis=ax), lax.slice_in_dim(tail, 0, m, axis=ax))
+            core = lax.dynamic_update_slice_in_dim(core, head, 0, axis=ax)
+            if w > n:
+                raise ValueError(f"a window of {w} nodes on a periodic axis of {n}")
+        acc = core
+    return acc
 
 
 def shift(values, old_origin, new_origin, shape, periodic, fill):
