@@ -608,13 +608,23 @@ def _contact_stress_windows(contact: Contact, model, state, params, origins):
     idx_t = jax.dtypes.canonicalize_dtype(jnp.int64)  # _two_nearest's (argmin's) index type
     out.update(Pi=Pi, a=close(a_out).astype(idx_t), b=close(b_out).astype(idx_t), pair=pair)
     if contact.walls:
-        own = _presence(phic, contact, h, kern)  # the same for every wall
-
         def presences(sl, phi_w):
-            pw = jnp.asarray(phi_w)  # the wall's distance at every corner
-            pw_w = at(close_periodic_corners(pw, per))
-            terms = own * _presence(phic + 2.0 * pw_w, contact, h, kern)
-            return close(windows.accumulate(jnp.zeros(base, phic.dtype), terms, origins, per))[sl]
+            # only a window's rows (columns, layers) next to the wall can lie in its strip of
+            # m corners: the first m of a window at a low wall (its corner r is corner
+            # origin + r >= r of the grid), the last m at a high wall (a window ends at or
+            # before the grid's last corner); the others add exact zeros
+            axis = next(a for a in range(nd) if sl[a] != slice(None))
+            m = min(sl[axis].stop - sl[axis].start, W[axis] + 1)
+            first = 0 if sl[axis].start == 0 else W[axis] + 1 - m
+            part = (slice(None),) + tuple(slice(first, first + m) if a == axis else slice(None)
+                                          for a in range(nd))
+            o = origins.at[:, axis].add(first)
+            size = tuple(m if a == axis else W[a] + 1 for a in range(nd))
+            pw = close_periodic_corners(jnp.asarray(phi_w), per)  # the wall's distance
+            pw_w = windows.blocks(pw, o, size, per)
+            ph = phic[part]
+            terms = _presence(ph, contact, h, kern) * _presence(ph + 2.0 * pw_w, contact, h, kern)
+            return close(windows.accumulate(jnp.zeros(base, phic.dtype), terms, o, per))[sl]
 
         _wall_stress(contact, model, K, presences, out, zeros)
     return out
