@@ -248,7 +248,7 @@ class Numerics:
     sized at t = 0 round the nodes with ``phi < phi_max h``), where the band work (map
     advection, pinning and re-distancing, extrapolation and smoothing), the stress, blend
     weights and density and the contact run; same results to round-off, for many small
-    bodies much faster (100 discs at 300^2: 2.3x per step).  A body that outgrows its box
+    bodies much faster (100 discs at 300^2: 2.6x per step).  A body that outgrows its box
     stops the run with a message.  Output files, diagnostics and ``Model.on_grid(state)``
     give the whole-grid fields.  The state stays on the whole grid (only the stress,
     weights and density, and where they apply the band work and contact, on boxes cut
