@@ -311,15 +311,8 @@ def follow(phi_w, origin, reach, shape, periodic, margin: int = MARGIN):
         edge_lo = periodic[a] | (origin[a] > 0)  # the old window's sides inside the grid
         edge_hi = periodic[a] | (origin[a] + w < n)
         fits = fits & ~(edge_lo & (lo_w == 0)) & ~(edge_hi & (lo_w + length == w))
-        start = origin[a] + lo_w
-        if periodic[a]:
-            o = (start + length // 2 - w // 2) % n
-            lo = (start - o) % n
-            fits = fits & (lo >= margin) & (lo + length <= w - margin)
-        else:
-            lo, hi = start, start + length - 1
-            o = jnp.clip((lo + hi + 1) // 2 - w // 2, 0, n - w)
-            fits = fits & ((lo - margin >= o) | (o == 0)) & ((hi + margin <= o + w - 1) | (o + w == n))
+        o, ok = _centred(origin[a] + lo_w, length, n, w, periodic[a], margin)
+        fits = fits & ok
         new.append(jnp.asarray(o, jnp.int32))
     return jnp.stack(new), fits
 
@@ -369,6 +362,20 @@ def axis_box(line, periodic: bool):
     return jnp.where(any_true, lo, 0), jnp.where(any_true, hi - lo + 1, 0)
 
 
+def _centred(start, length, n: int, w: int, periodic: bool, margin: int):
+    """``(origin, fits)`` along one axis of ``n`` nodes: a window of ``w`` nodes centred on
+    the box ``[start, start + length)`` (inside ``[0, n - w]`` on a walled axis), and
+    whether the box with ``margin`` nodes to spare lies in it (on a walled axis the spare
+    may be cut by a grid edge the window shares)."""
+    if periodic:
+        o = (start + length // 2 - w // 2) % n
+        lo = (start - o) % n  # the box lies in [o + margin, o + w - margin) mod n
+        return o, (lo >= margin) & (lo + length <= w - margin)
+    lo, hi = start, start + length - 1
+    o = jnp.clip((lo + hi + 1) // 2 - w // 2, 0, n - w)
+    return o, ((lo - margin >= o) | (o == 0)) & ((hi + margin <= o + w - 1) | (o + w == n))
+
+
 def placement(phi, reach, window, periodic, margin: int = MARGIN):
     """``(origin (d,) int32, fits bool)`` of a window of size ``window`` for a body whose
     level set is ``phi`` (``(*grid)``): centred on the box of its nodes with
@@ -386,16 +393,7 @@ def placement(phi, reach, window, periodic, margin: int = MARGIN):
         n, w = shape[a], window[a]
         line = jnp.any(m, axis=tuple(b for b in range(d) if b != a))
         start, length = axis_box(line, periodic[a])
-        if periodic[a]:
-            o = (start + length // 2 - w // 2) % n
-            # the box [start, start + length) lies in [o + margin, o + w - margin) mod n
-            lo = (start - o) % n
-            fits = fits & (lo >= margin) & (lo + length <= w - margin)
-        else:
-            lo, hi = start, start + length - 1
-            o = jnp.clip((lo + hi + 1) // 2 - w // 2, 0, n - w)
-            ok_lo = (lo - margin >= o) | (o == 0)
-            ok_hi = (hi + margin <= o + w - 1) | (o + w == n)
-            fits = fits & ok_lo & ok_hi
+        o, ok = _centred(start, length, n, w, periodic[a], margin)
+        fits = fits & ok
         origin.append(jnp.asarray(o, jnp.int32))
     return jnp.stack(origin), fits
