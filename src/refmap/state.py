@@ -255,7 +255,10 @@ class Numerics:
     from it each step, falling back on the whole grid in a step where a body outgrew its
     box) for an anchored solid, a solid glued to a wall at t = 0, a body whose box would
     hold more than half the grid (the rotor), the incompressible fluid, ``band_force =
-    "solid"`` and ``fluid_mass = "conserved"``.  Tested in 2D only.
+    "solid"`` and ``fluid_mass = "conserved"``.  With the solids in windows the step's
+    ``derived`` fields hold the mixed ones only (``s..``, ``rho``, ``wf_c``, ``wf_n``), not
+    the per-solid whole-grid fields (``ws_n``, ``phic``, ``J``, ...): a body-force term of
+    your own that reads those needs ``"grid"``.  Tested in 2D only.
     """
 
     blur_width: float = 2.0
