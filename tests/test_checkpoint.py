@@ -55,6 +55,20 @@ class Killed(Exception):
     """Stands in for the process dying."""
 
 
+def _killed_after_frame_3(case, out):
+    """Run ``case`` into ``out`` with a checkpoint every 2 frames and "kill" it once frame 3
+    is written (so the checkpoint holds frame 2); returns ``out``."""
+    sim = Simulation(case, out, progress=False, pictures=False, checkpoint_every=2)
+
+    def die(i, state):
+        if i == 3:
+            raise Killed
+
+    with pytest.raises(Killed):
+        sim.run(on_frame=die)
+    return out
+
+
 def test_kill_and_resume_is_bitwise_identical(straight, tmp_path):
     out = tmp_path / "killed"
     sim = Simulation(tiny_case(), out, progress=False, pictures=False, checkpoint_every=2)
@@ -246,15 +260,7 @@ def test_incompressible_run_resumes_bitwise_with_its_pressure(tmp_path):
     ref = straight.run()
     assert ref.p is not None and np.abs(np.asarray(ref.p)).max() > 0
 
-    out = tmp_path / "killed"
-    sim = Simulation(case, out, progress=False, pictures=False, checkpoint_every=2)
-
-    def die(i, state):
-        if i == 3:
-            raise Killed
-
-    with pytest.raises(Killed):
-        sim.run(on_frame=die)
+    out = _killed_after_frame_3(case, tmp_path / "killed")
     st, info = load_checkpoint(out)
     assert st.p is not None and st.p.shape == st.rho_f.shape
     final = Simulation.resume(out, progress=False, pictures=False).run()
@@ -279,15 +285,7 @@ def test_a_run_with_solids_in_windows_resumes_bitwise(tmp_path):
     ref = straight.run()
     assert ref.origin is not None and ref.phi.shape[1:] == straight.model.state_window
 
-    out = tmp_path / "killed"
-    sim = Simulation(case, out, progress=False, pictures=False, checkpoint_every=2)
-
-    def die(i, state):
-        if i == 3:
-            raise Killed
-
-    with pytest.raises(Killed):
-        sim.run(on_frame=die)
+    out = _killed_after_frame_3(case, tmp_path / "killed")
     st, _ = load_checkpoint(out)
     assert st.origin is not None and st.origin.shape == (4, 2)
     final = Simulation.resume(out, progress=False, pictures=False).run()

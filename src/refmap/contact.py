@@ -394,23 +394,23 @@ def contact_stress(contact: Contact, model, state, params, derived=None):
     """
     d = derived if derived is not None else model.derived(state, params)
     win = _windows_for(contact, model, d)
+
+    def grid(_):
+        # the corner level sets made here (inside the branch below: the windowed branch
+        # needs none of the solids' whole-grid fields), of the solids on the whole grid
+        on_grid = model.on_grid(state)
+        phip = model.bc.pad_linear(on_grid.phi)[model._core(1)]
+        return _contact_stress_grid(contact, model, on_grid, params, corner_average(phip, model.ndim))
+
     if win is None and model.windowed(state):
         # solids stored in windows but the contact not on them (one solid, or a presence
-        # that reaches past phi_max h): their level sets on the whole grid
-        state = model.on_grid(state)
-        phip = model.bc.pad_linear(state.phi)[model._core(1)]
-        return _contact_stress_grid(contact, model, state, params, corner_average(phip, model.ndim))
+        # that reaches past phi_max h)
+        return grid(None)
     if win is None:  # (no "phic" without solids: nothing to touch)
         return _contact_stress_grid(contact, model, state, params, d.get("phic"))
     origins, fits = win
     if model.windowed(state):  # the solids stored in windows: no whole-grid level sets
         return _contact_stress_windows(contact, model, state, params, jnp.maximum(origins, 0))
-
-    def grid(_):
-        # the corner level sets made here, inside the branch: the windowed branch needs
-        # none of the solids' whole-grid fields
-        phip = model.bc.pad_linear(state.phi)[model._core(1)]
-        return _contact_stress_grid(contact, model, state, params, corner_average(phip, model.ndim))
 
     def windowed(_):
         return _contact_stress_windows(contact, model, state, params, origins)

@@ -630,10 +630,15 @@ class Model:
         reference shape's own image (used to unwrap the positions of a body cut by a
         periodic edge).
         """
-        shape = self.solids[k].shape
+        return self._least_image(xi_k, self.solids[k].shape, return_shift)
+
+    def _least_image(self, xi_k, level, return_shift: bool = False):
+        """The least of ``level(*X)`` over the periodic images ``X`` of ``xi_k``
+        (:meth:`_images`), with ``return_shift`` also the shift of the image that gave it
+        (:meth:`phi0`, for a shape or a shape's level set with traced parameters)."""
         out = best = None
         for X, shift in self._images(xi_k):
-            val = shape(*X)
+            val = level(*X)
             if out is None:
                 out, best = val, list(shift)
                 continue
@@ -787,11 +792,8 @@ class Model:
             table = jnp.asarray([list(p) for _, p in members], dtype=xi.dtype)  # (G, P)
 
             def shape_phi(p, xi_k, skeleton=skeleton):
-                out = None
-                for X, _ in self._images(xi_k):
-                    val = geometry._evaluate(X, tuple(p[i] for i in range(p.shape[0])), skeleton)
-                    out = val if out is None else jnp.where(val < out, val, out)
-                return out
+                params = tuple(p[i] for i in range(p.shape[0]))
+                return self._least_image(xi_k, lambda *X: geometry._evaluate(X, params, skeleton))
 
             if ks == list(range(self.n_solids)):  # one kind of shape: the solids in order
                 return jax.vmap(shape_phi)(table, xi)
@@ -1246,14 +1248,34 @@ class Model:
 
         return narrowband.switch(level, [tiled(c) for c in caps] + [dense], None)
 
+    @property
+    def _band_reach(self) -> float:
+        """The level below which a node is in a band window's box: just under ``phi_max h``
+        (the clipped nodes stay out)."""
+        return self.numerics.phi_max * self.h * (1.0 - 1e-9)
+
     def _band_placement(self, phi, window=None):
         """``(origins (S, d), fits)``: the band windows of :meth:`_band_on_windows` (of
         ``window`` nodes, default :attr:`solid_band_window`) placed on the level sets
         ``phi``, round each solid's nodes with ``phi < phi_max h``."""
-        reach = self.numerics.phi_max * self.h * (1.0 - 1e-9)  # the clipped nodes stay out
+        reach = self._band_reach
         W = self.solid_band_window if window is None else window
         return jax.vmap(lambda p: windows.placement(p, reach, W, self.bc.periodic, margin=BAND_WINDOW_MARGIN))(
             lax.stop_gradient(phi))
+
+    def _advect_window(self, xi_w, phi_w, xip, v_w, dt):
+        """Step 1 on one solid's window: the map ``xi_w`` advected (ENO, from ``xip``, the
+        map continuous with two ghost layers) with the window's velocity ``v_w`` where
+        ``phi_w < (band - 3) h``, kept elsewhere."""
+        limit = (self.numerics.band - 3.0) * self.h
+        return jnp.where(phi_w < limit, xi_w + dt * self._advect(xip, v_w, *self.spacing), xi_w)
+
+    def _pin_and_extend_windows(self, xi_w, phi_w, X, dt):
+        """Step 9 on every solid's window: the level sets pinned to the maps and
+        re-distanced, then the maps (less the windows' node coordinates ``X``) extended and
+        smoothed in the windows.  Returns ``(xi_w, phi_w)``."""
+        phi_w = self.pin(phi_w, xi_w, dt, periodic=(False,) * self.ndim)
+        return self._extend_all(xi_w - X, phi_w, windowed=True) + X, phi_w
 
     def _band_on_windows(self, xi, phi, vel, dt, placed=None):
         """Steps 1 and 9 of :meth:`step` (map advection, pinning and re-distancing,
@@ -1267,16 +1289,12 @@ class Model:
         is clipped at ``phi_max h`` there and the maps are neither advected nor extended), so
         the result is the whole grid's to round-off.  A step in which a body's box does not
         fit its window runs the phases on the whole grid."""
-        n = self.numerics
         W = self.solid_band_window
         per = self.bc.periodic
         g = self.grid
-        nd = self.ndim
         shape = g.shape()
         sp = self.spacing
         origins, fits = self._band_placement(phi) if placed is None else placed
-        limit = (n.band - 3.0) * self.h
-        advect = self._advect
         padded = tuple(w + 4 for w in W)
 
         def cut(xi_k, phi_k, o):
@@ -1287,13 +1305,11 @@ class Model:
             # two ghost layers, the map continuous across a periodic edge: as
             # BoundaryConditions.pad_affine on the grid
             xip = solid_tiles.cut_map(xi_k, o, padded, g.lows, sp, per, offset=-2)
-            xi_w = jnp.where(phi_w < limit, xi_w + dt * advect(xip, v_w, *sp), xi_w)
-            return xi_w, phi_w, X
+            return self._advect_window(xi_w, phi_w, xip, v_w, dt), phi_w, X
 
         def win(_):
             xi_w, phi_w, X = jax.vmap(cut)(xi, phi, origins)
-            phi_w = self.pin(phi_w, xi_w, dt, periodic=(False,) * nd)
-            xi_w = self._extend_all(xi_w - X, phi_w, windowed=True) + X
+            xi_w, phi_w = self._pin_and_extend_windows(xi_w, phi_w, X, dt)
             put = functools.partial(windows.put, periodic=per)
             return jax.vmap(put)(xi, xi_w, origins), jax.vmap(put)(phi, phi_w, origins)
 
@@ -1312,31 +1328,25 @@ class Model:
         taking the far level set ``phi_max h`` and the identity map (beyond the band: no
         phase reads them).  A body whose band no longer fits its window gets the origin -1
         (:meth:`advance` stops there and says so)."""
-        n = self.numerics
         W = self.state_window
         per = self.bc.periodic
         g = self.grid
-        nd = self.ndim
         shape = g.shape()
         sp = self.spacing
-        limit = (n.band - 3.0) * self.h
-        advect = self._advect
         o = jnp.maximum(state.origin, 0)
 
         def advect_one(xi_k, phi_k, oo):
             v_w = windows.gather(vel, oo, W, per)
-            xip = self._window_maps(xi_k, oo, 2, 2)
-            return jnp.where(phi_k < limit, xi_k + dt * advect(xip, v_w, *sp), xi_k)
+            return self._advect_window(xi_k, phi_k, self._window_maps(xi_k, oo, 2, 2), v_w, dt)
 
         xi_w = jax.vmap(advect_one)(state.xi, state.phi, o)
-        phi_w = self.pin(state.phi, xi_w, dt, periodic=(False,) * nd)
         X = jax.vmap(lambda oo: windows.coordinates(oo, W, g.lows, sp, shape, per))(o)
-        xi_w = self._extend_all(xi_w - X, phi_w, windowed=True) + X
+        xi_w, phi_w = self._pin_and_extend_windows(xi_w, state.phi, X, dt)
 
-        reach = n.phi_max * self.h * (1.0 - 1e-9)  # as _band_placement
+        reach = self._band_reach
         new, fits = jax.vmap(lambda p, oo: windows.follow(p, oo, reach, shape, per, margin=BAND_WINDOW_MARGIN))(
             lax.stop_gradient(phi_w), o)
-        far = jnp.asarray(n.phi_max * self.h, phi_w.dtype)
+        far = jnp.asarray(self.numerics.phi_max * self.h, phi_w.dtype)
 
         def move(xi_k, phi_k, old, oo):
             kept = windows.shift(jnp.ones(W, phi_k.dtype), old, oo, shape, per, 0.0) > 0.5

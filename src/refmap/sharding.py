@@ -90,11 +90,9 @@ def state_shardings(mesh: Mesh, pressure: bool = False, windows: bool = False) -
     def ns(*spec):
         return NamedSharding(mesh, P(*spec))
 
-    if windows:
-        return State(t=ns(), step=ns(), v=ns(None, AXIS), rho_f=ns(AXIS), xi=ns(), phi=ns(),
-                     p=ns(AXIS) if pressure else None, origin=ns())
     return State(t=ns(), step=ns(), v=ns(None, AXIS), rho_f=ns(AXIS),
-                 xi=ns(None, None, AXIS), phi=ns(None, AXIS), p=ns(AXIS) if pressure else None)
+                 xi=ns() if windows else ns(None, None, AXIS), phi=ns() if windows else ns(None, AXIS),
+                 p=ns(AXIS) if pressure else None, origin=ns() if windows else None)
 
 
 def replicated(mesh: Mesh) -> NamedSharding:

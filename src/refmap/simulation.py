@@ -436,7 +436,7 @@ class Simulation:
         nd, gshape = g.ndim, g.shape()
         want = {"v": (nd, *gshape), "rho_f": gshape, "xi": (sim.model.n_solids, nd, *gshape),
                 "phi": (sim.model.n_solids, *gshape)}
-        on_grid = sim.model.on_grid(state) if state.origin is not None else state  # solids in windows
+        on_grid = sim.model.on_grid(state)  # solids stored in windows: their grid fields
         for name, shape in want.items():
             if tuple(getattr(on_grid, name).shape) != shape:
                 raise CheckpointError(
@@ -579,7 +579,8 @@ class Simulation:
         raise SimulationBlowUp(msg)
 
     def _blow_up(self, bad, good, info, writer):
-        if bad.origin is not None and not np.all(np.asarray(bad.origin) >= 0):
+        fields = check_finite_fields(bad)
+        if "origin" in fields:
             # a body outgrew the window its map and level set are stored in
             lost = np.flatnonzero(np.any(np.asarray(bad.origin) < 0, axis=1))
             names = ", ".join(repr(self.model.solids[k].name) for k in lost)
@@ -588,7 +589,6 @@ class Simulation:
                        "(numerics solid_storage = 'window' sizes the windows from the bodies at "
                        "t = 0, with room for moving but little for growing); run it with "
                        "solid_storage = 'grid'", writer, info=info, advice=False)
-        fields = check_finite_fields(bad)
         if fields:
             what = f"non-finite {', '.join(fields)}"
         else:

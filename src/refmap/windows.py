@@ -20,8 +20,7 @@ windowed phase shares; it knows nothing of reference maps or stresses:
 * :func:`to_grid`: a window's values on the whole grid, ``fill`` outside (output files);
 * :func:`ghosted`: a window's values with linear ghost layers (a window stored on its
   own, without the grid round it); :func:`follow`: :func:`placement` from a window's own
-  level set (a window that moves with its body); :func:`offset_in`: one window's place
-  in another.
+  level set (a window that moves with its body).
 
 Every function works on the last ``d = len(W)`` axes of its arrays and on one window; use
 ``jax.vmap`` over bodies (the origins ``(S, d)`` with them).  On a non-periodic axis a window
@@ -101,15 +100,24 @@ def gather_ghosted(field, origin, size, periodic, offset: int = 0):
         if periodic[a]:
             out = jnp.take(out, u % n, axis=ax)
             continue
-        inside = jnp.take(out, jnp.clip(u, 0, n - 1), axis=ax)
-        f0, f1, e0, e1 = (lax.index_in_dim(out, i, axis=ax) for i in (0, 1, n - 1, n - 2))
-        bshape = (1,) * ax + (size[a],) + (1,) * (out.ndim - ax - 1)
-        uf = u.astype(out.dtype).reshape(bshape)
-        m = uf - (n - 1)
-        low = (1 - uf) * f0 + uf * f1
-        high = (1 + m) * e0 - m * e1
-        out = jnp.where((u < 0).reshape(bshape), low, jnp.where((u > n - 1).reshape(bshape), high, inside))
+        out = _take_linear(out, u, ax)
     return out
+
+
+def _take_linear(a, u, ax: int):
+    """The values of ``a`` at the indices ``u`` (int array) along axis ``ax``, an index
+    below 0 or past the last node taking the linear extrapolation of the two nodes next to
+    that end (``(1 - u) f_0 + u f_1`` below, the mirror form above: ``pad_linear``'s
+    ghosts)."""
+    n = a.shape[ax]
+    inside = jnp.take(a, jnp.clip(u, 0, n - 1), axis=ax)
+    f0, f1, e0, e1 = (lax.index_in_dim(a, i, axis=ax) for i in (0, 1, n - 1, n - 2))
+    bshape = (1,) * ax + (u.shape[0],) + (1,) * (a.ndim - ax - 1)
+    uf = u.astype(a.dtype).reshape(bshape)
+    m = uf - (n - 1)
+    low = (1 - uf) * f0 + uf * f1
+    high = (1 + m) * e0 - m * e1
+    return jnp.where((u < 0).reshape(bshape), low, jnp.where((u > n - 1).reshape(bshape), high, inside))
 
 
 def coordinates(origin, size, lows, spacing, shape, periodic, offset: int = 0, wrap: bool = True):
@@ -272,23 +280,14 @@ def to_grid(values, origin, shape, periodic, fill):
 def ghosted(values, before: int, after: int, d: int):
     """A window's values (``(..., *window)``, the last ``d`` axes) with ``before`` and
     ``after`` ghost layers on each axis, the linear extrapolation of the two nodes next to
-    each edge, axis after axis: the arithmetic of :func:`gather_ghosted`, so that at a
+    each edge, axis after axis (:func:`_take_linear`, as :func:`gather_ghosted`), so that at a
     window's side that lies on a wall the ghosts are the grid's (``pad_linear``'s) bit for
     bit.  At a side inside the grid the nodes past the window are beyond its body's band
     (the windows keep a margin), where no phase reads a value that matters."""
     out = values
     for a in range(d):
         ax = out.ndim - d + a
-        w = out.shape[ax]
-        u = jnp.arange(-before, w + after, dtype=jnp.int32)
-        inside = jnp.take(out, jnp.clip(u, 0, w - 1), axis=ax)
-        f0, f1, e0, e1 = (lax.index_in_dim(out, i, axis=ax) for i in (0, 1, w - 1, w - 2))
-        bshape = (1,) * ax + (u.shape[0],) + (1,) * (out.ndim - ax - 1)
-        uf = u.astype(out.dtype).reshape(bshape)
-        m = uf - (w - 1)
-        low = (1 - uf) * f0 + uf * f1
-        high = (1 + m) * e0 - m * e1
-        out = jnp.where((u < 0).reshape(bshape), low, jnp.where((u > w - 1).reshape(bshape), high, inside))
+        out = _take_linear(out, jnp.arange(-before, out.shape[ax] + after, dtype=jnp.int32), ax)
     return out
 
 
@@ -315,20 +314,6 @@ def follow(phi_w, origin, reach, shape, periodic, margin: int = MARGIN):
         fits = fits & ok
         new.append(jnp.asarray(o, jnp.int32))
     return jnp.stack(new), fits
-
-
-def offset_in(origin, inner, shape, periodic):
-    """``inner - origin`` per axis (``(d,)`` int32), the position of a window at ``inner``
-    inside one at ``origin``: modulo the node count on a periodic axis (the shortest way
-    round)."""
-    out = []
-    for a in range(len(shape)):
-        r = inner[a] - origin[a]
-        if periodic[a]:
-            n = shape[a]
-            r = (r + n // 2) % n - n // 2
-        out.append(r)
-    return jnp.stack(out).astype(jnp.int32)
 
 
 def _circular_box(line):
