@@ -349,3 +349,22 @@ def test_accumulate_equals_the_scatters(periodic):
                                                                 periodic, "min")), np.asarray(ref))
     with pytest.raises(ValueError, match="op must be 'add' or 'min', got 'max'"):
         windows.accumulate(base, vals, origins, periodic, "max")
+
+
+@pytest.mark.parametrize("periodic", [(True, True), (False, False), (True, False)])
+def test_blocks_read_what_gather_reads(periodic):
+    """``blocks`` (one slice per window) reads every window's values as ``gather`` does
+    (one index per value), wrapping round periodic edges and corners, with a leading axis
+    of components; a window longer than a periodic axis is refused."""
+    rng = np.random.default_rng(13)
+    shape, size = (20, 17), (9, 8)
+    field = jnp.asarray(rng.normal(size=(3,) + shape))
+    origins = [(0, 0), (15, 12), (5, 3), (11, 9), (3, 14)]
+    origins = jnp.asarray([[o if p else min(o, n - w) for o, n, w, p in zip(og, shape, size, periodic, strict=True)]
+                           for og in origins])
+    got = np.asarray(windows.blocks(field, origins, size, periodic))
+    ref = np.stack([np.asarray(windows.gather(field, o, size, periodic)) for o in origins])
+    np.testing.assert_array_equal(got, ref)
+    if periodic[0]:
+        with pytest.raises(ValueError, match="a window of 21 nodes on a periodic axis of 20"):
+            windows.blocks(field, origins, (21, 8), periodic)
