@@ -27,7 +27,13 @@ t = T so that it runs on deformed bodies.  Per tree and case it reports:
 * ``B/cell``: XLA's cost analysis of one compiled step, bytes accessed per grid cell.  XLA
   counts the body of each loop once (not times its trip count), so this undercounts the
   extrapolation and smoothing sweeps; it compares revisions, it is not the true traffic;
-* ``flop/cell``: the same analysis's floating-point operations per cell (same caveat).
+* ``flop/cell``: the same analysis's floating-point operations per cell (same caveat);
+* ``peak GB``: the process's peak resident memory (build, compile and steps).
+
+A case that the old tree cannot hold (``--cases 1000@1024``: 1000 discs on the whole grid
+need about 1 TB) is skipped for that tree when refmap's own estimate for whole-grid
+storage (:func:`refmap.resources.estimate_memory`'s fit) exceeds ``--old-max-gb``; its
+row shows the new tree alone.
 
 It also measures this machine's memory bandwidth (a numpy copy of 256 MB, read + write,
 one thread), to set ``B/cell x Mcups`` against.
@@ -39,6 +45,8 @@ Usage::
     python benchmarks/compare_revisions.py main HEAD --large --counts 1,10,100
     python benchmarks/compare_revisions.py 9ff03f0 . --no-rotor --sizes 300 --counts 1,10,100 \
         --new-storage window      # the per-body windows against the old default
+    python benchmarks/compare_revisions.py 9ff03f0 . --no-rotor --counts '' --cases 1000@1024 \
+        --new-storage window --steps 2 --reps 1 --rounds 1   # new tree only (old cannot fit)
 
 Prints one table row per case and figure: old | new | new/old.
 """
@@ -66,7 +74,7 @@ SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads
 # measured in the tree's own process; CASE, N, SIZE, STEPS, REPS, FIXED, WARM, STORAGE are
 # prepended
 _MEASURE = r"""
-import json, time
+import json, resource, time
 from dataclasses import replace
 import jax
 import refmap
@@ -124,13 +132,21 @@ cells = SIZE * SIZE
 out = dict(step_ms=best_cpu / STEPS * 1e3, wall_ms=best_wall / STEPS * 1e3,
            Mcups=cells * STEPS / best_cpu / 1e6, compile_s=first_wall - best_wall,
            bytes_per_cell=float(cost.get("bytes accessed", float("nan"))) / cells,
-           flops_per_cell=float(cost.get("flops", float("nan"))) / cells)
+           flops_per_cell=float(cost.get("flops", float("nan"))) / cells,
+           peak_GB=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6)
 print("@@" + json.dumps(out))
 """
 
 FIGURES = (("step_ms", "step [ms CPU]", "{:.2f}"), ("wall_ms", "step [ms wall]", "{:.2f}"),
            ("Mcups", "Mcell-upd/s", "{:.3f}"), ("compile_s", "compile [s]", "{:.2f}"),
-           ("bytes_per_cell", "B/cell (XLA)", "{:.0f}"), ("flops_per_cell", "flop/cell (XLA)", "{:.0f}"))
+           ("bytes_per_cell", "B/cell (XLA)", "{:.0f}"), ("flops_per_cell", "flop/cell (XLA)", "{:.0f}"),
+           ("peak_GB", "peak GB", "{:.2f}"))
+
+
+def grid_storage_gb(n_solids: int, size: int) -> float:
+    """refmap's estimate (:mod:`refmap.resources`: 600 MiB + 100 B per node + 1100 B per node
+    and solid) of a run with every solid on the whole grid, in GB."""
+    return (600 * 2**20 + size * size * (100 + 1100 * n_solids)) / 1e9
 
 
 def _tree(rev: str, tmp: Path) -> tuple[Path, str]:
@@ -190,6 +206,9 @@ def main(argv=None) -> int:
     ap.add_argument("--large", action="store_true", help="add 512 and 1024 to --sizes")
     ap.add_argument("--counts", default="1,10", help="numbers of discs N, comma list ('' for none)")
     ap.add_argument("--no-rotor", action="store_true", help="skip the rotor case")
+    ap.add_argument("--cases", default="", help="more disc cases N@n (N discs at n x n), comma list")
+    ap.add_argument("--old-max-gb", type=float, default=16.0,
+                    help="skip the old tree where whole-grid storage needs more than this (GB)")
     ap.add_argument("--steps", type=int, default=10, help="steps per timed call")
     ap.add_argument("--reps", type=int, default=3, help="timed calls per process (best kept)")
     ap.add_argument("--rounds", type=int, default=2,
@@ -212,6 +231,7 @@ def main(argv=None) -> int:
     if bad or a.steps < 1 or a.reps < 1 or a.rounds < 1:
         ap.error(f"sizes must be >= 16, counts, steps, reps and rounds >= 1 (got {bad or 'steps/reps/rounds'})")
     cases = ([] if a.no_rotor else [("rotor", 1)]) + [("discs", c) for c in counts]
+    extra = [tuple(int(x) for x in c.split("@")) for c in a.cases.split(",") if c.strip()]
 
     bw = memory_bandwidth()
     print(f"machine: {os.cpu_count()} CPUs; numpy copy bandwidth (1 thread) {bw:.1f} GB/s; "
@@ -222,24 +242,27 @@ def main(argv=None) -> int:
         tmp = Path(td)
         trees = [_tree(a.old, tmp), _tree(a.new, tmp)]
         try:
-            for size in sizes:
-                for case, N in cases:
-                    key = f"{case}{'' if case == 'rotor' else N} {size}^2"
-                    runs = {"old": [], "new": []}
-                    for r in range(a.rounds):
-                        order = ("old", "new") if r % 2 == 0 else ("new", "old")
-                        for label in order:
-                            tree = trees[0 if label == "old" else 1][0]
-                            storage = a.new_storage if label == "new" and case != "rotor" else "grid"
-                            runs[label].append(measure(tree, case, N, size, a.steps, a.reps,
-                                                       not a.adaptive, a.warm_up, storage))
-                            print(f"  {key}: {label} round {r + 1} "
-                                  f"{runs[label][-1]['step_ms']:.2f} ms/step", file=sys.stderr,
-                                  flush=True)
-                    # best of the rounds: the least disturbed process
-                    res[key] = {label: {k: min(x[k] for x in rows) if k != "Mcups"
-                                        else max(x[k] for x in rows) for k in rows[0]}
-                                for label, rows in runs.items()}
+            todo = [(size, case, N) for size in sizes for case, N in cases]
+            todo += [(size, "discs", N) for N, size in extra]
+            for size, case, N in todo:
+                key = f"{case}{'' if case == 'rotor' else N} {size}^2"
+                runs = {"old": [], "new": []}
+                for r in range(a.rounds):
+                    order = ("old", "new") if r % 2 == 0 else ("new", "old")
+                    for label in order:
+                        if label == "old" and grid_storage_gb(N, size) > a.old_max_gb:
+                            continue  # cannot hold it: the new tree alone
+                        tree = trees[0 if label == "old" else 1][0]
+                        storage = a.new_storage if label == "new" and case != "rotor" else "grid"
+                        runs[label].append(measure(tree, case, N, size, a.steps, a.reps,
+                                                   not a.adaptive, a.warm_up, storage))
+                        print(f"  {key}: {label} round {r + 1} "
+                              f"{runs[label][-1]['step_ms']:.2f} ms/step", file=sys.stderr,
+                              flush=True)
+                # best of the rounds: the least disturbed process
+                res[key] = {label: {k: min(x[k] for x in rows) if k != "Mcups"
+                                    else max(x[k] for x in rows) for k in rows[0]}
+                            for label, rows in runs.items() if rows}
         finally:
             for t, _ in trees:
                 if str(t).startswith(str(tmp)):
@@ -252,6 +275,11 @@ def main(argv=None) -> int:
           + (f"; new tree's discs with solid_storage = {a.new_storage!r}" if a.new_storage != "grid" else ""))
     print(f"{'case':16s} {'figure':16s} {'old':>10s} {'new':>10s} {'new/old':>8s}")
     for key, r in res.items():
+        if "old" not in r:
+            N, size = (int(x) for x in key.removeprefix("discs").removesuffix("^2").split())
+            r["old"] = {name: float("nan") for name, _, _ in FIGURES}
+            print(f"{key:16s} old tree not run: whole-grid storage needs about "
+                  f"{grid_storage_gb(N, size):.0f} GB (> --old-max-gb {a.old_max_gb:g})")
         for name, title, fmt in FIGURES:
             o, n = r["old"][name], r["new"][name]
             ratio = n / o if o else float("nan")

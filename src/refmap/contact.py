@@ -117,6 +117,7 @@ from jax import lax
 
 from refmap import blend, narrowband, windows
 from refmap.operators import SYM_PAIRS, corner_average, div_node
+from refmap.materials import law_moduli
 
 __all__ = [
     "PAIR_COLUMNS_MAX_SOLIDS",
@@ -271,8 +272,8 @@ class Contact:
 def _stiffness(contact: Contact, params):
     """K = strength * (largest small-strain longitudinal modulus of the solids)."""
     M_max = jnp.asarray(1e-30)
-    for law in params.laws:
-        M_max = jnp.maximum(M_max, law.moduli()[1])
+    if params.laws:  # (batched by law class: the code does not grow with the solids)
+        M_max = jnp.maximum(M_max, jnp.max(law_moduli(params.laws)[1]))
     return contact.strength * M_max
 
 

@@ -767,6 +767,31 @@ LAWS: dict[str, type[HyperelasticLaw]] = {
 }
 
 
+def law_moduli(laws) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(mu, M, rho0)``, each ``(N,)``: the small-strain moduli (:meth:`HyperelasticLaw.moduli`)
+    and reference densities of the laws ``laws``, in their order.  The laws of one class and
+    one pytree structure are stacked and their moduli taken with one ``vmap``, so that the
+    traced code does not grow with the number of solids (a thousand discs of two densities
+    are one such group, not a thousand differentiations of the stress)."""
+    if not laws:
+        empty = jnp.zeros((0,))
+        return empty, empty, empty
+    groups: dict[Any, list[int]] = {}
+    for k, law in enumerate(laws):
+        groups.setdefault((type(law), jax.tree_util.tree_structure(law)), []).append(k)
+    parts, order = [], []
+    for members in groups.values():
+        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
+                                         *(laws[k] for k in members))
+        mu, M = jax.vmap(lambda law: law.moduli())(stacked)
+        parts.append(jnp.stack([mu, M, jnp.asarray(stacked.rho0, dtype=M.dtype)]))
+        order += members
+    out = jnp.concatenate(parts, axis=1)
+    if order != sorted(order):
+        out = out[:, np.argsort(order)]
+    return out[0], out[1], out[2]
+
+
 def law_from_dict(d: Mapping[str, Any]) -> HyperelasticLaw:
     """Build a law from ``{"law": <key of LAWS>, <parameter>: value, ...}``.
 

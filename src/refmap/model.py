@@ -41,6 +41,7 @@ from jax import lax
 from refmap import blend, extrapolation, geometry, levelset, narrowband, solid_tiles, windows
 from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
+from refmap.materials import law_moduli
 from refmap.operators import (
     SYM_COMPONENTS,
     SYM_PAIRS,
@@ -350,22 +351,110 @@ class Model:
                 raise ValueError(f"initial_velocity has {int((~np.isfinite(v0)).sum())} non-finite values")
             initial_velocity = v0
         self.initial_velocity = initial_velocity
-        Xn = grid.mesh("node")
-        self._xi0 = np.stack(
-            [np.stack(s.initial_map(*Xn)) for s in self.solids]
-        ) if self.solids else np.zeros((0, d) + grid.shape())
-        # phi0 of the initial maps (S, ...): where each solid is at t = 0, computed once for
-        # the wall glue and the static band and tile sizes below
+        # the solids at t = 0 on a box round each body only (no whole-grid array per
+        # solid), where the model can store its solids in windows; else on the whole grid
+        self._boxes = self._initial_boxes()
+        if self._boxes is not None:
+            self._xi0 = self._phi_t0 = None
+            self.band_capacity = self._initial_band_capacity()  # None: no grid band work
+            self.solid_tiles = None
+            self.solid_window = self._initial_solid_window()
+            self.solid_band_window = self._initial_solid_band_window()
+            self.state_window = self._initial_state_window()
+            if self.state_window is None:  # windows too large after all: the grid's way
+                self._boxes = None
+        if self._boxes is None:
+            Xn = grid.mesh("node")
+            self._xi0 = np.stack(
+                [np.stack(s.initial_map(*Xn)) for s in self.solids]
+            ) if self.solids else np.zeros((0, d) + grid.shape())
+            # phi0 of the initial maps (S, ...): where each solid is at t = 0, computed once
+            # for the wall glue and the static band and tile sizes below
+            with jax.ensure_compile_time_eval():
+                self._phi_t0 = np.stack([np.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)]) \
+                    if self.solids else np.zeros((0,) + grid.shape())
+            if self.solids:  # solids touching a resting wall at t = 0 stay glued to it
+                self.bc.glue(self._xi0 - np.stack(Xn), self._phi_t0 < 0)
+            self.band_capacity = self._initial_band_capacity()
+            self.solid_tiles = self._initial_solid_tiles()
+            self.solid_window = self._initial_solid_window()
+            self.solid_band_window = self._initial_solid_band_window()
+            self.state_window = self._initial_state_window()
+
+    def _initial_boxes(self):
+        """The solids at t = 0 on one box of nodes per solid, for a model that can store its
+        solids in windows (``Numerics.solid_storage = "window"``, none of the settings that
+        :meth:`_initial_state_window` keeps on the grid): ``(box, origins (S, d) int,
+        xi (S, d, *box), phi (S, *box))``, the initial maps and ``phi0`` of them on each
+        solid's box, the values the whole grid has at those nodes.  The box (one size for
+        all) is the shape's ``bbox()`` carried into the current configuration by the
+        inverse of the initial strain, widened on each side by ``phi_max`` cells (the band
+        box), the band window's margin and slack and two nodes, so that the band window
+        placed round the body at t = 0 lies inside it.
+
+        None (the whole grid's arrays are formed, as for grid storage) where this cannot be
+        done exactly: a shape without ``bbox()``, a box as long as a grid axis, a body whose
+        nodes with ``phi <= phi_max h`` reach a side of its box inside the grid (a shape
+        whose level set is not a distance), or a body on the first node row next to a
+        non-periodic edge (the wall glue of :meth:`BoundaryConditions.glue` is formed on the
+        whole grid; such a model keeps grid storage anyway)."""
+        n = self.numerics
+        if n.solid_storage != "window" or not self.solids or self.projection is not None:
+            return None
+        if n.band_force == "solid" or n.fluid_mass == "conserved":
+            return None
+        if any(s.anchor is not None for s in self.solids):
+            return None
+        g = self.grid
+        d = self.ndim
+        shape = g.shape()
+        per = self.bc.periodic
+        sp = self.spacing
+        pad = math.ceil(n.phi_max) + BAND_WINDOW_MARGIN + SOLID_WINDOW_SLACK + 2
+        lo_hi = []
+        for s in self.solids:
+            try:
+                bb = np.asarray(s.shape.bbox(), dtype=float).reshape(d, 2)
+            except (AttributeError, NotImplementedError, TypeError, ValueError):
+                return None
+            A = np.asarray(s.strain, dtype=float)
+            c = np.asarray(s.strain_center, dtype=float)
+            corners = np.stack(np.meshgrid(*bb, indexing="ij"), axis=-1).reshape(-1, d)
+            x = c + np.linalg.solve(A, (corners - c).T).T  # xi = A (x - c) + c
+            first = np.floor((x.min(axis=0) - np.asarray(g.lows)) / np.asarray(sp) - 0.5).astype(int) - pad
+            last = np.ceil((x.max(axis=0) - np.asarray(g.lows)) / np.asarray(sp) - 0.5).astype(int) + pad
+            lo_hi.append((first, last))
+        box = tuple(int(max(last[a] - first[a] + 1 for first, last in lo_hi)) for a in range(d))
+        if any(b >= m for b, m in zip(box, shape, strict=True)):
+            return None
+        origins = []
+        for first, last in lo_hi:
+            o = []
+            for a in range(d):
+                start = (first[a] + last[a] + 1) // 2 - box[a] // 2
+                o.append(start % shape[a] if per[a] else min(max(start, 0), shape[a] - box[a]))
+            origins.append(o)
+        origins = np.asarray(origins, dtype=np.int32)
+        axes = g.axes("node")
+        idx = [(origins[:, a, None] + np.arange(box[a])) % shape[a] for a in range(d)]  # (S, B_a)
+        xi = np.stack([np.stack(s.initial_map(*np.meshgrid(*(axes[a][idx[a][k]] for a in range(d)),
+                                                           indexing="ij")))
+                       for k, s in enumerate(self.solids)])  # the grid's node coordinates
         with jax.ensure_compile_time_eval():
-            self._phi_t0 = np.stack([np.asarray(self.phi0(k, self._xi0[k])) for k in range(self.n_solids)]) \
-                if self.solids else np.zeros((0,) + grid.shape())
-        if self.solids:  # solids touching a resting wall at t = 0 stay glued to it
-            self.bc.glue(self._xi0 - np.stack(Xn), self._phi_t0 < 0)
-        self.band_capacity = self._initial_band_capacity()
-        self.solid_tiles = self._initial_solid_tiles()
-        self.solid_window = self._initial_solid_window()
-        self.solid_band_window = self._initial_solid_band_window()
-        self.state_window = self._initial_state_window()
+            phi = np.asarray(self._phi0_all(jnp.asarray(xi)))
+            reach = self._band_reach
+            _, inside = jax.vmap(lambda p, o: windows.place_from(p, o, reach, box, shape, per, margin=0))(
+                jnp.asarray(phi), jnp.asarray(origins))
+        if not bool(np.all(np.asarray(inside))):
+            return None
+        for a in range(d):  # a body on the first node row in from a wall: glue (grid)
+            if per[a]:
+                continue
+            rows = [phi.take(0, axis=1 + a)[origins[:, a] == 0],
+                    phi.take(-1, axis=1 + a)[origins[:, a] + box[a] == shape[a]]]
+            if any(bool(np.any(r < 0)) for r in rows):
+                return None
+        return box, origins, xi, phi
 
     def _initial_solid_tiles(self):
         """``(tile, blend capacities, stress capacities)`` for computing each solid's
@@ -422,6 +511,16 @@ class Model:
     def _largest_box(self, reach):
         """The largest extent (nodes per axis), over the solids at t = 0, of the box of a
         solid's nodes with ``phi < reach`` (the shortest box round a periodic axis)."""
+        if self._boxes is not None:  # each body's box holds all its nodes below phi_max h
+            m = self._boxes[3] < reach
+            ext = []
+            for a in range(self.ndim):
+                line = m.any(axis=tuple(b for b in range(1, self.ndim + 1) if b != a + 1))  # (S, B_a)
+                idx = np.arange(line.shape[1])
+                first = np.where(line, idx, line.shape[1]).min(axis=1)
+                last = np.where(line, idx, -1).max(axis=1)
+                ext.append(int(np.max(np.where(line.any(axis=1), last - first + 1, 0))))
+            return ext
         ext = [0] * self.ndim
         for k in range(self.n_solids):
             m = self._phi_t0[k] < reach
@@ -487,9 +586,13 @@ class Model:
         tile = (WINDOW_TILE_TARGET[nd],) * nd
         shift = n.advected_band * self.h
         with jax.ensure_compile_time_eval():
-            phi = jnp.asarray(self._phi_t0)
-            origins, _ = self._band_placement(phi, window)
-            phi_w = jax.vmap(lambda p, o: windows.gather(p, o, window, self.bc.periodic))(phi, origins)
+            if self._boxes is not None:
+                origins = self._box_placement(self._boxes[3], window)[0]
+                phi_w = jnp.asarray(self._cut_boxes(self._boxes[3], origins, window))
+            else:
+                phi = jnp.asarray(self._phi_t0)
+                origins, _ = self._band_placement(phi, window)
+                phi_w = jax.vmap(lambda p, o: windows.gather(p, o, window, self.bc.periodic))(phi, origins)
             counts = np.asarray(extrapolation.band_tiles(phi_w - shift, n.band * self.h - shift, tile,
                                                          (False,) * nd))
         total = math.prod(narrowband.n_tiles(window, tile))
@@ -498,6 +601,40 @@ class Model:
             return None
         tight = min(narrowband.capacity_for(counts.tolist(), BAND_TIGHT, total), capacity)
         return tile, (tight, capacity)
+
+    def _box_placement(self, phi_b, window):
+        """``(origins (S, d), fits)``: the band windows of ``window`` nodes placed round each
+        solid's nodes with ``phi < phi_max h``, from its level set ``phi_b`` on its box of
+        :meth:`_initial_boxes` (as :meth:`_band_placement` places them from the grid's)."""
+        reach = self._band_reach
+        origins_b = jnp.asarray(self._boxes[1])
+        g = self.grid
+        return jax.vmap(lambda p, o: windows.place_from(
+            p, o, reach, window, g.shape(), self.bc.periodic, margin=BAND_WINDOW_MARGIN))(
+            lax.stop_gradient(jnp.asarray(phi_b)), origins_b)
+
+    def _cut_boxes(self, values, origins, window):
+        """The windows of ``window`` nodes at ``origins`` (S, d) cut from per-solid values on
+        the boxes of :meth:`_initial_boxes` (``(S, ..., *box)``), as numpy arrays; each
+        window lies in its solid's box (the box is sized for that)."""
+        values = np.asarray(values)
+        origins = np.asarray(origins)
+        box, origins_b = self._boxes[0], self._boxes[1]
+        shape = self.grid.shape()
+        d = self.ndim
+        out = []
+        for k in range(values.shape[0]):
+            sl = []
+            for a in range(d):
+                off = int(origins[k, a] - origins_b[k, a])
+                if self.bc.periodic[a]:
+                    off %= shape[a]
+                if not 0 <= off <= box[a] - window[a]:
+                    raise RuntimeError(f"solid {self.solids[k].name!r}: its window at {origins[k].tolist()} "
+                                       f"leaves its box at {origins_b[k].tolist()} of {box} nodes")
+                sl.append(slice(off, off + window[a]))
+            out.append(values[k][(Ellipsis, *sl)])
+        return np.stack(out)
 
     def _auto_too_small(self) -> bool:
         """``band_sweeps = "auto"``: a 2D grid too small for tiles to pay
@@ -526,8 +663,8 @@ class Model:
         self.band_tile = narrowband.tile_shape(
             self.grid.shape(), self.bc.periodic, target=extrapolation.TILE_TARGET[nd]
         )
-        if n.band_sweeps == "grid" or not self.solids:
-            return None
+        if n.band_sweeps == "grid" or not self.solids or self._boxes is not None:
+            return None  # (solids in windows: no band work on the grid)
         capacity = None
         if self.band_tile is not None:
             shift = n.advected_band * self.h
@@ -825,6 +962,8 @@ class Model:
         """
         g = self.grid
         shape = g.shape()
+        if self._boxes is not None:
+            return self._initial_state_windows(params, redistance_iters)
         xi = jnp.asarray(self._xi0)
         phis = []
         for k in range(self.n_solids):
@@ -850,6 +989,69 @@ class Model:
             phi=phi,
             p=jnp.zeros(shape, dtype=jnp.float64) if self.projection is not None else None,
         ))
+
+    def _initial_state_windows(self, params: Params, redistance_iters: int) -> State:
+        """:meth:`initial_state` for solids stored in windows, formed on the windows alone
+        (no whole-grid array per solid): each window placed round its body's nodes with
+        ``phi < phi_max h`` (from the boxes of :meth:`_initial_boxes`), the maps and
+        ``phi0`` cut from the boxes, the level sets re-distanced in the windows (their
+        edges not periodic: the re-distancing carries information outwards from the
+        contour, and the band box lies ``BAND_WINDOW_MARGIN`` nodes and more inside the
+        edges) and clipped; re-placed round the re-distanced level sets if that moves a
+        window (a shape whose ``phi0`` is not a distance).  The solids' velocities enter
+        through their fractions summed over the windows (:func:`refmap.windows.accumulate`).
+        The same state as the whole grid's cut to windows, to round-off."""
+        g = self.grid
+        d = self.ndim
+        shape = g.shape()
+        per = self.bc.periodic
+        n = self.numerics
+        W = self.state_window
+        far = n.phi_max * self.h
+        _, _, xi_b, phi_b = self._boxes
+        reach = self._band_reach
+
+        def redistanced(psi):
+            phi = levelset.redistance(psi, g.dx, g.dy, redistance_iters, periodic=(False,) * d, **self._dz())
+            return jnp.clip(phi, -far, far)
+
+        with jax.ensure_compile_time_eval():  # geometry only: evaluated now, also under jit
+            origins = np.asarray(self._box_placement(phi_b, W)[0])
+        for _ in range(3):
+            with jax.ensure_compile_time_eval():
+                xi = jnp.asarray(self._cut_boxes(xi_b, origins, W))
+                phi = jax.vmap(redistanced)(jnp.asarray(self._cut_boxes(phi_b, origins, W)))
+                new, fits = jax.vmap(lambda p, o: windows.follow(
+                    p, o, reach, shape, per, margin=BAND_WINDOW_MARGIN))(phi, jnp.asarray(origins))
+                new, fits = np.asarray(new), np.asarray(fits)
+            if not np.all(fits):
+                bad = [self.solids[k].name for k in np.flatnonzero(~fits)]
+                raise ValueError(
+                    f"solid(s) {bad}: the band does not fit the window of {W} nodes "
+                    "(Numerics.solid_storage = 'window' sizes it from t = 0); use solid_storage = 'grid'")
+            if np.array_equal(new, origins):
+                break
+            origins = new
+        o = jnp.asarray(origins, dtype=jnp.int32)
+        v = (jnp.zeros((d, *shape)) if self.initial_velocity is None
+             else jnp.asarray(self.initial_velocity))
+        V = np.stack([np.asarray(s.velocity, dtype=float) for s in self.solids])
+        if np.any(V != 0.0):
+            H = blend.heaviside(phi, n.blend, n.blur_width * self.h)
+            total = windows.accumulate(jnp.zeros(shape), 1.0 - H, o, per)
+            ws = (1.0 - H) * (1.0 / jnp.maximum(windows.blocks(total, o, W, per), 1.0))  # solid_fractions
+            ws_v = ws[:, None] * jnp.asarray(V).reshape((-1, d) + (1,) * d)
+            v = windows.accumulate(v, ws_v, o, per)
+        return State(
+            t=jnp.asarray(0.0, dtype=jnp.float64),
+            step=jnp.asarray(0, dtype=jnp.int64),
+            v=v,
+            rho_f=jnp.full(shape, params.fluid.rho0, dtype=jnp.float64),
+            xi=xi,
+            phi=phi,
+            p=None,
+            origin=o,
+        )
 
     # ------------------------------------------------------------------ window storage
     def windowed(self, state: State) -> bool:
@@ -966,11 +1168,11 @@ class Model:
         rho_min = fl.rho0
         c_solid = jnp.asarray(1e-30)
         M_max = jnp.asarray(1e-30)
-        for law in params.laws:
-            rho_min = jnp.minimum(rho_min, law.rho0)
-            mu, M = law.moduli()
-            c_solid = jnp.maximum(c_solid, jnp.sqrt(M / law.rho0))
-            M_max = jnp.maximum(M_max, M)
+        if params.laws:  # (the laws of one class batched: the code does not grow with them)
+            _, M, rho0 = law_moduli(params.laws)
+            rho_min = jnp.minimum(rho_min, jnp.min(rho0))
+            c_solid = jnp.maximum(c_solid, jnp.max(jnp.sqrt(M / rho0)))
+            M_max = jnp.maximum(M_max, jnp.max(M))
         nu = (fl.eta + fl.extra_viscosity + fl.bulk_viscosity) / rho_min
         speed = jnp.abs(state.v[0]) + jnp.abs(state.v[1])
         for a in range(2, self.ndim):
@@ -1466,7 +1668,7 @@ class Model:
             v_new = self.projection.correct(v_new, state.p, d["rho"], dt, self._anchor_free)
         guesses = first_iterates if first_iterates is not None else {}
         solutions = {}
-        xi0 = jnp.asarray(self._xi0)
+        xi0 = None if self._xi0 is None else jnp.asarray(self._xi0)  # (anchors only)
         if implicit:
             if self.projection is not None:
                 # the edges' normal components that the projection prescribes are held in
@@ -1573,7 +1775,7 @@ class Model:
             xi_new = self._advect_maps(state.xi, bc.pad_affine(state.xi), vq, state.phi, dt)
 
             # 8. anchors
-            xi0 = jnp.asarray(self._xi0)
+            xi0 = None if self._xi0 is None else jnp.asarray(self._xi0)  # (anchors only)
             for k, s in enumerate(self.solids):
                 if s.anchor is not None:
                     v_k, xk = s.anchor.apply(g, v_new, xi_new[k], xi0[k])

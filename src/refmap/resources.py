@@ -39,10 +39,36 @@ BYTES_PER_SOLID_NODE = 1100
 GiB = 2.0**30
 
 
+def solid_nodes(case) -> int:
+    """Nodes summed over the solids on which each keeps its fields: the whole grid per
+    solid, or with ``Numerics.solid_storage = "window"`` a window round each body, about
+    its ``bbox()`` widened by ``phi_max`` cells, the band window's margins and slack (the
+    model keeps a solid on the grid where windows do not apply: then this is a lower
+    bound, as the estimate is meant to be)."""
+    grid = case.grid
+    shape = tuple(int(n) for n in grid.shape())
+    nodes = math.prod(shape)
+    if getattr(case.numerics, "solid_storage", "grid") != "window":
+        return len(case.solids) * nodes
+    from refmap.model import BAND_WINDOW_MARGIN, SOLID_WINDOW_SLACK
+
+    pad = 2 * (math.ceil(case.numerics.phi_max) + BAND_WINDOW_MARGIN) + SOLID_WINDOW_SLACK
+    total = 0
+    for s in case.solids:
+        try:
+            bb = s.shape.bbox()
+        except (AttributeError, NotImplementedError):
+            total += nodes
+            continue
+        ext = [(bb[2 * a + 1] - bb[2 * a]) / h + pad for a, h in enumerate(grid.spacing)]
+        total += min(nodes, math.prod(min(n, math.ceil(e)) for n, e in zip(shape, ext, strict=True)))
+    return total
+
+
 def estimate_memory(case) -> int:
     """Bytes a run of ``case`` needs, about (see the module docstring for the fit)."""
     nodes = math.prod(int(n) for n in case.grid.shape())  # nx ny (nz): no 3D fit yet
-    return int(BASE_BYTES + nodes * (BYTES_PER_NODE + len(case.solids) * BYTES_PER_SOLID_NODE))
+    return int(BASE_BYTES + nodes * BYTES_PER_NODE + solid_nodes(case) * BYTES_PER_SOLID_NODE)
 
 
 def _meminfo_available() -> int | None:
@@ -89,7 +115,7 @@ def check_memory(case, available: tuple[int | None, str] | None = None) -> None:
     if have is None or need <= have:
         return
     g = case.grid
-    per_node = BYTES_PER_NODE + len(case.solids) * BYTES_PER_SOLID_NODE
+    per_node = BYTES_PER_NODE + solid_nodes(case) / math.prod(g.shape()) * BYTES_PER_SOLID_NODE
     fit_nodes = max(0.0, (have - BASE_BYTES) / per_node)
     shape = g.shape()
     # keep the aspect ratio: n = nx at the largest grid of this shape that fits
@@ -102,4 +128,4 @@ def check_memory(case, available: tuple[int | None, str] | None = None) -> None:
     )
 
 
-__all__ = ["available_memory", "check_memory", "estimate_memory"]
+__all__ = ["available_memory", "check_memory", "estimate_memory", "solid_nodes"]

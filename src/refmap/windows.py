@@ -299,18 +299,30 @@ def follow(phi_w, origin, reach, shape, periodic, margin: int = MARGIN):
     window holds every such node).  ``fits``: that box with ``margin`` nodes to spare lies
     in the new window, and it does not touch a side of the old window that is inside the
     grid (the body might reach past it, unseen)."""
-    window = phi_w.shape
-    d = len(window)
-    m = phi_w <= reach
+    return place_from(phi_w, origin, reach, phi_w.shape, shape, periodic, margin)
+
+
+def place_from(phi_b, origin, reach, window, shape, periodic, margin: int = MARGIN):
+    """``(origin (d,) int32, fits bool)``: where :func:`placement` puts a window of
+    ``window`` nodes for a body whose level set is known on a box only: ``phi_b`` on the
+    box at ``origin`` (any size, e.g. the box a shape's level set was evaluated on at
+    t = 0).  The box of the nodes with ``phi <= reach`` is found in ``phi_b`` and centred as
+    :func:`placement` centres the grid's box (the same origin when ``phi_b`` holds every
+    such node).  ``fits``: that box with ``margin`` nodes to spare lies in the new window,
+    and it does not touch a side of the box that is inside the grid (the body might reach
+    past it, unseen).  :func:`follow` is the case ``window = phi_b.shape``."""
+    box = phi_b.shape
+    d = len(box)
+    m = phi_b <= reach
     new, fits = [], jnp.any(m)
     for a in range(d):
-        n, w = shape[a], window[a]
-        line = jnp.any(m, axis=tuple(b for b in range(d) if b != a))
-        lo_w, length = axis_box(line, False)
-        edge_lo = periodic[a] | (origin[a] > 0)  # the old window's sides inside the grid
-        edge_hi = periodic[a] | (origin[a] + w < n)
-        fits = fits & ~(edge_lo & (lo_w == 0)) & ~(edge_hi & (lo_w + length == w))
-        o, ok = _centred(origin[a] + lo_w, length, n, w, periodic[a], margin)
+        n, b, w = shape[a], box[a], window[a]
+        line = jnp.any(m, axis=tuple(c for c in range(d) if c != a))
+        lo_b, length = axis_box(line, False)
+        edge_lo = periodic[a] | (origin[a] > 0)  # the box's sides inside the grid
+        edge_hi = periodic[a] | (origin[a] + b < n)
+        fits = fits & ~(edge_lo & (lo_b == 0)) & ~(edge_hi & (lo_b + length == b))
+        o, ok = _centred(origin[a] + lo_b, length, n, w, periodic[a], margin)
         fits = fits & ok
         new.append(jnp.asarray(o, jnp.int32))
     return jnp.stack(new), fits
