@@ -389,3 +389,35 @@ def test_a_windowed_model_is_built_on_boxes_round_its_bodies(name, monkeypatch):
     monkeypatch.setattr(Grid, "mesh", lambda self, loc="node": (_ for _ in ()).throw(AssertionError("mesh")))
     again = Model(base.grid, solids, boundary, numerics)
     np.testing.assert_array_equal(np.asarray(again.initial_state(params).xi), np.asarray(b.xi))
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_case_check_evaluates_each_shape_on_a_box(periodic):
+    """``Case.validate``'s mask of the nodes inside each solid at t = 0 is formed on a box
+    round the shape's ``bbox()`` (1000 discs at 1024^2: 1000 small boxes, not 1000 whole
+    grids): the same mask as the whole grid's evaluation, for shapes across a periodic
+    corner or past a wall, rotated, strained at t = 0, combined, and the rotor."""
+    import dataclasses
+
+    from refmap.case import _inside_at_t0
+    from refmap.geometry import Capsule, Ellipse, Rectangle, Rotor, Union
+
+    law = NeoHookean(G=10.0, kappa=10.0, rho0=1.0)
+    grid = Grid(72, 64)
+    boundary = PERIODIC if periodic else Boundary()
+    shapes = [
+        Disc(center=(1.9, -1.95), radius=0.4),  # across the corner (past the walls)
+        Ellipse(center=(0.3, 0.2), semi_axes=(0.9, 0.3), angle=0.7),
+        Rectangle(center=(-1.8, 0.5), half_size=(0.5, 0.2), angle=0.3),
+        Union(a=Capsule(center=(0.0, -1.0), half_length=0.5, radius=0.15, angle=0.4),
+              b=Disc(center=(1.0, 1.0), radius=0.3)),
+        Rotor(center=(0.2, 0.0), arm_half_length=1.2, half_width=0.2, fillet_center=0.4),
+    ]
+    Xn = grid.mesh("node")
+    for k, shape in enumerate(shapes):
+        solid = Solid(shape=shape, law=law, name=f"s{k}")
+        for s in (solid, dataclasses.replace(solid, strain=((1.1, 0.2), (-0.1, 0.9)), strain_center=(0.2, -0.1))):
+            want = np.asarray(s.shape(*s.initial_map(*Xn))) < 0
+            got = _inside_at_t0(grid, s, Xn, boundary)
+            assert want.any()
+            np.testing.assert_array_equal(got, want)

@@ -19,6 +19,43 @@ from refmap.grid import Grid
 from refmap.state import FluidParams, Numerics
 
 
+def _inside_at_t0(grid, solid, Xn, boundary) -> np.ndarray:
+    """The grid's nodes inside ``solid`` at t = 0 (bool, the node shape): its shape evaluated
+    at the initial map, on the nodes of a box round the shape's ``bbox()`` (carried through
+    the inverse of the initial strain, two nodes to spare; wrapped round a periodic axis)
+    when it has one, else on every node (``Xn``).  The box keeps the check of many small
+    bodies cheap (1000 discs at 1024^2: 1000 evaluations of a few thousand nodes, not of
+    a million)."""
+    d = grid.ndim
+    shape = grid.shape()
+    try:
+        bb = np.asarray(solid.shape.bbox(), dtype=float).reshape(d, 2)
+        A = np.asarray(solid.strain, dtype=float)
+        c = np.asarray(solid.strain_center, dtype=float)
+        corners = np.stack(np.meshgrid(*bb, indexing="ij"), axis=-1).reshape(-1, d)
+        x = c + np.linalg.solve(A, (corners - c).T).T
+    except (AttributeError, NotImplementedError, TypeError, ValueError, np.linalg.LinAlgError):
+        return np.asarray(solid.shape(*solid.initial_map(*Xn))) < 0
+    lows, sp = np.asarray(grid.lows), np.asarray(grid.spacing)
+    first = np.floor((x.min(axis=0) - lows) / sp - 0.5).astype(int) - 2
+    last = np.ceil((x.max(axis=0) - lows) / sp - 0.5).astype(int) + 2
+    periodic = [getattr(boundary, names[0]) == "periodic" for names in AXIS_FACES[:d]]
+    idx = []
+    for a in range(d):
+        i = np.arange(first[a], last[a] + 1)
+        if periodic[a]:
+            i = np.unique(i % shape[a]) if i.size < shape[a] else np.arange(shape[a])
+        else:
+            i = i[(i >= 0) & (i < shape[a])]
+        idx.append(i)
+    axes = grid.axes("node")
+    inside = np.zeros(shape, dtype=bool)
+    if all(i.size for i in idx):
+        Xb = np.meshgrid(*(axes[a][idx[a]] for a in range(d)), indexing="ij")
+        inside[np.ix_(*idx)] = np.asarray(solid.shape(*solid.initial_map(*Xb))) < 0
+    return inside
+
+
 class CaseError(ValueError):
     """An invalid case value (raised before any compilation)."""
 
@@ -132,8 +169,7 @@ class Case:
                 s.law.validate()
             except ValueError as e:
                 bad(f"{label}: {e}")
-            phi = np.asarray(s.shape(*s.initial_map(*Xn)))
-            inside = phi < 0
+            inside = _inside_at_t0(g, s, Xn, self.boundary)
             covered |= inside
             if not inside.any():
                 bad(f"{label}: the shape covers no grid node (too small for n={g.nx}, or outside the domain)")

@@ -413,7 +413,9 @@ def _frame_record(run_dir: Path, path: Path, index: int):
             loc = ds.attrs["location"]
             loc = loc.decode() if isinstance(loc, bytes) else str(loc)
             per = bool(ds.attrs["per_solid"])
-            recs.append(W._FieldRecord(name, loc, int(ds.shape[0]) if per else 0))
+            # the dataset's number type too (an integer field, solid_index, is int32)
+            recs.append(W._FieldRecord(name, loc, int(ds.shape[0]) if per else 0,
+                                       *W.xdmf_number(ds.dtype)))
         zero = None
         if "xdmf" in f:
             for k in f["xdmf"]:

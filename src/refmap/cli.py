@@ -71,7 +71,7 @@ def run_cmd(
     from refmap.case import CaseError
     from refmap.casefile import is_case_file, load_run
     from refmap.scenarios import get_case
-    from refmap.simulation import Simulation
+    from refmap.simulation import Simulation, format_rate
 
     _request_devices(devices)
     try:
@@ -104,7 +104,7 @@ def run_cmd(
     _run_sim(sim, out_dir)
     typer.echo(
         f"done: {sim.total_steps} steps in {sim.wall_time:.1f} s "
-        f"({sim.total_steps / max(sim.wall_time, 1e-9):.0f} steps/s); output in {out_dir}"
+        f"({format_rate(sim.total_steps / max(sim.wall_time, 1e-9))} steps/s); output in {out_dir}"
     )
     if sim.conservation_text():
         typer.echo(sim.conservation_text())

@@ -116,8 +116,8 @@ import numpy as np
 from jax import lax
 
 from refmap import blend, narrowband, windows
-from refmap.operators import SYM_PAIRS, corner_average, div_node
 from refmap.materials import law_moduli
+from refmap.operators import SYM_PAIRS, corner_average, div_node
 
 __all__ = [
     "PAIR_COLUMNS_MAX_SOLIDS",
@@ -222,6 +222,12 @@ class Contact:
         if N >= 1:
             out["contact_min_wall_gap"] = jnp.min(d["wall_gap"])
             axes = "xyz"[: model.ndim]
+            if model.windowed(state):  # many bodies: columns, not a dict per solid
+                from refmap.window_diagnostics import SolidRows
+
+                out["solids"] = SolidRows({**{f"contact_f{a}": d["force"][:, c] for c, a in enumerate(axes)},
+                                           "wall_gap": d["wall_gap"]})
+                return out
             out["solids"] = [
                 {
                     **{f"contact_f{a}": d["force"][k, c] for c, a in enumerate(axes)},
@@ -700,8 +706,10 @@ def contact_diagnostics(
       crossed it; +inf if none.
     """
     contact = contact if contact is not None else Contact()
-    if model.windowed(state):  # solids stored in windows: these numbers read the grid's
-        state, derived = model.on_grid(state), None
+    if model.windowed(state):
+        if _on_windows(model, gap_band):  # from the windows: no solid's whole-grid field
+            return _diagnostics_on_windows(model, state, params, contact, gap_band, derived)
+        state, derived = model.on_grid(state), None  # the numbers of the grid's fields
     g = model.grid
     nd = g.ndim
     dA = g.cell_area if nd == 2 else g.cell_volume  # the cell's d-dimensional measure
@@ -725,29 +733,14 @@ def contact_diagnostics(
     def per_solid(f):
         return jnp.einsum(f"k{ijk},c{ijk}->kc", owner, f) * dA
 
-    out["pair_force"] = per_solid(cf["pair_force"])
-    out["wall_force"] = per_solid(cf["wall_force"])
-    out["force"] = out["pair_force"] + out["wall_force"]
-    out["net_pair_force"] = jnp.sum(cf["pair_force"], axis=space) * dA
-    out["max_contact_pressure"] = jnp.max(cf["Pi"])
-    out["max_wall_pressure"] = jnp.max(cf["Pi_wall"])
+    out.update(_force_numbers(cf, per_solid, dA, space))
     L = gap_band * h
     near = jnp.abs(phi) < L
     gap = jnp.full((N, N), jnp.inf)
     area = jnp.zeros((N, N))
     if N >= 2:
         a, b = _two_nearest(phi)
-        pa, pb = _take(phi, a), _take(phi, b)
-        key = (jnp.minimum(a, b) * N + jnp.maximum(a, b)).ravel()
-        ok = (jnp.abs(pa) < L) & (jnp.abs(pb) < L)
-        gk = jax.ops.segment_min(jnp.where(ok, pa + pb, jnp.inf).ravel(), key, num_segments=N * N)
-        ak = jax.ops.segment_sum(
-            ((pa < 0) & (pb < 0)).astype(phi.dtype).ravel(), key, num_segments=N * N
-        )
-        gap = gk.reshape(N, N)
-        gap = jnp.minimum(gap, gap.T)
-        area = ak.reshape(N, N) * dA
-        area = area + area.T
+        gap, area = _pair_tables(a, b, _take(phi, a), _take(phi, b), N, L, dA)
     eye = jnp.eye(N, dtype=bool)
     out["min_gap"] = jnp.where(eye, jnp.nan, gap)
     out["overlap_area"] = jnp.where(eye, jnp.nan, area)
@@ -755,6 +748,139 @@ def contact_diagnostics(
     for phi_w, _ in wall_distances(model, "node"):
         sw = phi + jnp.asarray(phi_w)[None]
         wg = jnp.minimum(wg, jnp.min(jnp.where(near, sw, jnp.inf), axis=space))
+    out["wall_gap"] = wg
+    return out
+
+
+def _force_numbers(cf, per_solid, dA, space) -> dict:
+    """The force entries of :func:`contact_diagnostics` from :func:`contact_force`'s ``cf``:
+    each solid's pair, wall and total force (``per_solid`` shares a grid force density out
+    among the solids), the net pair force and the largest pair and wall pressures."""
+    out = {"pair_force": per_solid(cf["pair_force"]), "wall_force": per_solid(cf["wall_force"])}
+    out["force"] = out["pair_force"] + out["wall_force"]
+    out["net_pair_force"] = jnp.sum(cf["pair_force"], axis=space) * dA
+    out["max_contact_pressure"] = jnp.max(cf["Pi"])
+    out["max_wall_pressure"] = jnp.max(cf["Pi_wall"])
+    return out
+
+
+def _pair_tables(a, b, pa, pb, N: int, L, dA):
+    """``(min_gap, overlap_area)`` (N, N) of :func:`contact_diagnostics`, symmetric (the
+    diagonal as it comes: the caller sets it), from the nearest and second-nearest solid
+    ``a``, ``b`` at every node and their level sets ``pa``, ``pb`` there (grid arrays): per
+    pair the least ``pa + pb`` over its nodes where both are below ``L`` in magnitude, and
+    ``dA`` times the count of its nodes inside both."""
+    key = (jnp.minimum(a, b) * N + jnp.maximum(a, b)).ravel()
+    ok = (jnp.abs(pa) < L) & (jnp.abs(pb) < L)
+    gk = jax.ops.segment_min(jnp.where(ok, pa + pb, jnp.inf).ravel(), key, num_segments=N * N)
+    ak = jax.ops.segment_sum(
+        ((pa < 0) & (pb < 0)).astype(pa.dtype).ravel(), key, num_segments=N * N
+    )
+    gap = gk.reshape(N, N)
+    gap = jnp.minimum(gap, gap.T)
+    area = ak.reshape(N, N) * dA
+    area = area + area.T
+    return gap, area
+
+
+def _on_windows(model, gap_band: float) -> bool:
+    """Whether :func:`contact_diagnostics` of solids stored in windows can read the windows
+    alone (:func:`_diagnostics_on_windows`): a solid's fraction is exactly 0 at
+    ``phi_max h`` (:func:`refmap.window_diagnostics.applies`) and ``phi_max h`` is outside
+    the gap band, so that a node outside a solid's window (at ``phi_max h`` on the grid)
+    adds nothing to its forces, gaps or overlaps."""
+    from refmap import window_diagnostics
+
+    return window_diagnostics.applies(model) and model.numerics.phi_max >= gap_band
+
+
+def _diagnostics_on_windows(model, state, params, contact: Contact, gap_band: float, derived=None):
+    """:func:`contact_diagnostics` of solids stored in windows (``state.origin`` set), from
+    the windows and grid fields only: no array of S whole-grid fields.
+
+    * the forces: the contact force density on the grid (:func:`contact_force`, on the
+      windows), read on each solid's window and weighted by its owner share ``ws_n / sum_k
+      ws_n`` there (the fractions of :func:`refmap.window_diagnostics.fields`, their sum over
+      the solids one grid field by :func:`refmap.windows.accumulate`);
+    * the gaps and overlaps: the nearest solid at every node by a scatter-min of all windows
+      into a grid at ``phi_max h`` and its index by a scatter-min of the solid index where a
+      window holds that least value (the lowest index wins a tie, as in
+      :func:`_two_nearest`); the second-nearest by the same two passes with the nearest left
+      out (as ``_contact_stress_windows`` does at the corners).  Then per pair the grid
+      path's segment minimum and sum (:func:`_pair_tables`): an (N, N) table filled from
+      grid arrays, O(N^2 + grid) and not O(N^2 grid); a pair whose windows share no node is
+      never the two nearest at a node and keeps +inf and 0, as on the grid.  The least
+      values are the windows' own, so the gaps and overlap areas are the grid's bit for bit.
+      Where fewer than two windows hold a node the grid has ``phi_max h`` (outside the gap
+      band, :func:`_on_windows`) for the missing ones: no pair counts there, on either;
+    * the wall gaps: over each window's nodes (the grid's nodes outside it are at
+      ``phi_max h``, outside the gap band)."""
+    from refmap import window_diagnostics
+
+    g = model.grid
+    nd = g.ndim
+    dA = g.cell_area if nd == 2 else g.cell_volume
+    space = tuple(range(-nd, 0))
+    N = model.n_solids
+    h = model.h
+    per = model.bc.periodic
+    shape = g.shape()
+    d = derived if derived is not None else model.derived(state, params)
+    f = d.get("solid_windows")
+    if f is None:
+        f = window_diagnostics.fields(model, state)
+    o, phi = f["origin"], f["phi"]
+    W = tuple(phi.shape[1:])
+
+    def at(field):  # every window's values of a grid field
+        return windows.blocks(field, o, W, per)
+
+    cf = contact_force(contact, model, state, params, d)
+    ws = f["ws_n"]
+    tot = at(windows.accumulate(jnp.zeros(shape, ws.dtype), ws, o, per))
+    owner = jnp.where(tot > 1e-300, ws / jnp.where(tot > 1e-300, tot, 1.0), 0.0)
+
+    def per_solid(field):  # (d, *grid) -> (N, d)
+        return jnp.sum(owner[:, None] * at(field), axis=space) * dA
+
+    out = {}
+    out.update(_force_numbers(cf, per_solid, dA, space))
+    L = gap_band * h
+    far = jnp.asarray(model.numerics.phi_max * h, phi.dtype)
+    gap = jnp.full((N, N), jnp.inf)
+    area = jnp.zeros((N, N))
+    if N >= 2:
+        k = jnp.arange(N, dtype=jnp.int32).reshape((N,) + (1,) * nd)
+
+        def least(vals, fill):
+            return windows.accumulate(jnp.full(shape, fill, vals.dtype), vals, o, per, "min")
+
+        def nearest(vals, skip=None):
+            """(least value, its lowest solid index; N where no window holds the node)."""
+            m = least(vals, far)
+            pick = vals == at(m)
+            if skip is not None:
+                pick = pick & (k != at(skip))
+            return m, least(jnp.where(pick, k, N), N)
+
+        pa, a = nearest(phi)
+        pb, b = nearest(jnp.where(k == at(a), far, phi), skip=a)
+        # the indices _two_nearest gives where every solid is at phi_max h: 0 and 1
+        a = jnp.where(a == N, 0, a)
+        b = jnp.where(b == N, jnp.where(a == 0, 1, 0), b)
+        gap, area = _pair_tables(a, b, pa, pb, N, L, dA)
+    eye = jnp.eye(N, dtype=bool)
+    out["min_gap"] = jnp.where(eye, jnp.nan, gap)
+    out["overlap_area"] = jnp.where(eye, jnp.nan, area)
+    near = jnp.abs(phi) < L
+    X = f["X"]  # the windows' node coordinates, as wall_distances takes the grid's
+    wg = jnp.full((N,), jnp.inf)
+    for axis, periodic in enumerate(per):
+        if periodic:
+            continue
+        lo, hi = g.lows[axis], g.highs[axis]
+        for phi_w in (X[:, axis] - lo, hi - X[:, axis]):
+            wg = jnp.minimum(wg, jnp.min(jnp.where(near, phi + phi_w, jnp.inf), axis=space))
     out["wall_gap"] = wg
     return out
 

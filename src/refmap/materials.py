@@ -767,6 +767,21 @@ LAWS: dict[str, type[HyperelasticLaw]] = {
 }
 
 
+def map_laws(fn, laws, *per_solid):
+    """``fn(law, *(a[k] for a in per_solid))`` for every solid k, stacked along a new first
+    axis: the laws of one class stacked into one pytree and ``fn`` taken with one ``vmap``
+    over them (one traced code path whatever the number of solids), one by one when the
+    classes differ or the laws do not stack."""
+    if len({type(law) for law in laws}) == 1 and len(laws) > 1:
+        try:
+            stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws)
+        except (ValueError, TypeError):
+            stacked = None
+        if stacked is not None:
+            return jax.vmap(fn)(stacked, *per_solid)
+    return jnp.stack([fn(law, *(a[k] for a in per_solid)) for k, law in enumerate(laws)])
+
+
 def law_moduli(laws) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(mu, M, rho0)``, each ``(N,)``: the small-strain moduli (:meth:`HyperelasticLaw.moduli`)
     and reference densities of the laws ``laws``, in their order.  The laws of one class and

@@ -41,7 +41,7 @@ from jax import lax
 from refmap import blend, extrapolation, geometry, levelset, narrowband, solid_tiles, windows
 from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
-from refmap.materials import law_moduli
+from refmap.materials import law_moduli, map_laws
 from refmap.operators import (
     SYM_COMPONENTS,
     SYM_PAIRS,
@@ -205,15 +205,7 @@ def _solid_stresses(laws, F):
     Solids sharing one law class are stacked into one pytree and processed with ``vmap``
     (one traced code path whatever their number); mixed classes fall back to a loop.
     """
-    if len({type(law) for law in laws}) == 1 and len(laws) > 1:
-        try:
-            stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws)
-        except (ValueError, TypeError):
-            stacked = None
-        if stacked is not None:
-            sig = jax.vmap(lambda law, f: law.stress(f))(stacked, F)
-            return sig, jnp.asarray(stacked.rho0, dtype=F.dtype)
-    sig = jnp.stack([law.stress(F[k]) for k, law in enumerate(laws)])
+    sig = map_laws(lambda law, f: law.stress(f), laws, F)
     return sig, jnp.stack([jnp.asarray(law.rho0, dtype=F.dtype) for law in laws])
 
 
@@ -908,10 +900,11 @@ class Model:
             return jax.vmap(one)(phi, self._phi0_all(xi))
         return jnp.stack([one(phi[k], self.phi0(k, xi[k])) for k in range(self.n_solids)])
 
-    def _phi0_all(self, xi):
+    def _phi0_all(self, xi, return_shift: bool = False):
         """:meth:`phi0` of every solid (S, ...) from its map ``xi`` (S, d, ...): the solids
         whose shapes differ only in their numbers (:func:`refmap.geometry._flatten`'s
-        skeleton) evaluated with one ``vmap`` over their parameters, the others one by one."""
+        skeleton) evaluated with one ``vmap`` over their parameters, the others one by one.
+        With ``return_shift`` also the periodic shifts (S, d, ...) of :meth:`phi0`."""
         groups = {}
         for k, s in enumerate(self.solids):
             if dataclasses.is_dataclass(s.shape):
@@ -924,20 +917,20 @@ class Model:
             ks = [k for k, _ in members]
             if len(members) == 1 or members[0][1] is None:
                 for k in ks:
-                    parts[k] = self.phi0(k, xi[k])[None]
+                    parts[k] = self.phi0(k, xi[k], return_shift)
                 continue
             table = jnp.asarray([list(p) for _, p in members], dtype=xi.dtype)  # (G, P)
 
             def shape_phi(p, xi_k, skeleton=skeleton):
                 params = tuple(p[i] for i in range(p.shape[0]))
-                return self._least_image(xi_k, lambda *X: geometry._evaluate(X, params, skeleton))
+                return self._least_image(xi_k, lambda *X: geometry._evaluate(X, params, skeleton), return_shift)
 
             if ks == list(range(self.n_solids)):  # one kind of shape: the solids in order
                 return jax.vmap(shape_phi)(table, xi)
             vals = jax.vmap(shape_phi)(table, xi[jnp.asarray(ks)])
             for j, k in enumerate(ks):
-                parts[k] = vals[j][None]
-        return jnp.concatenate(parts)
+                parts[k] = jax.tree_util.tree_map(lambda a, j=j: a[j], vals)
+        return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *parts)
 
     # ------------------------------------------------------------------ initial state
     def initial_state(self, params: Params, redistance_iters: int = 40) -> State:
@@ -1021,8 +1014,8 @@ class Model:
             with jax.ensure_compile_time_eval():
                 xi = jnp.asarray(self._cut_boxes(xi_b, origins, W))
                 phi = jax.vmap(redistanced)(jnp.asarray(self._cut_boxes(phi_b, origins, W)))
-                new, fits = jax.vmap(lambda p, o: windows.follow(
-                    p, o, reach, shape, per, margin=BAND_WINDOW_MARGIN))(phi, jnp.asarray(origins))
+                new, fits = jax.vmap(lambda p, o: windows.place_from(
+                    p, o, reach, W, shape, per, margin=BAND_WINDOW_MARGIN))(phi, jnp.asarray(origins))
                 new, fits = np.asarray(new), np.asarray(fits)
             if not np.all(fits):
                 bad = [self.solids[k].name for k in np.flatnonzero(~fits)]
@@ -1916,8 +1909,17 @@ class Model:
         """Scalar diagnostics and per-solid numbers at the current state (jit-able).
 
         ``solve``: the :meth:`frame_pressure` of this state, ``(p, info)``, when the caller
-        has it (incompressible fluid; solved here otherwise)."""
-        state = self.on_grid(state)
+        has it (incompressible fluid; solved here otherwise).
+
+        Solids stored in windows (``Numerics.solid_storage = "window"``): the per-solid
+        numbers come from each solid's window (:mod:`refmap.window_diagnostics`), no solid's
+        field on the whole grid (S of them would not fit for a thousand bodies); the same
+        numbers as from :meth:`on_grid`'s state to round-off."""
+        from refmap import window_diagnostics
+
+        windowed = self.windowed(state) and window_diagnostics.applies(self)
+        if not windowed:
+            state = self.on_grid(state)
         g = self.grid
         nd = self.ndim
         dA = g.cell_area if nd == 2 else g.cell_volume  # "area" below is the d-dim. measure
@@ -1944,9 +1946,23 @@ class Model:
             out.update(pressure_cg_iterations=info["iterations"],
                        pressure_cg_residual=info["relative_residual"],
                        pressure_cg_converged=info["converged"])
-        if self.n_solids:
+        if self.n_solids and windowed:
+            f = window_diagnostics.fields(self, state)
+            num = window_diagnostics.solid_numbers(self, state, params, f)
+            out["elastic_energy"] = jnp.sum(num["elastic_energy"])
+            out["solid_area"] = jnp.sum(num["area"])
+            out["J_min"] = jnp.min(num["J_min"])
+            out["J_max"] = jnp.max(num["J_max"])
+            out["solids"] = window_diagnostics.rows(self, num)
+            d = dict(d, solid_windows=f)  # the body forces' diagnostics read them too
+        elif self.n_solids:
             inside_c = d["phic"] < 0
             Jk = d["J"]
+            # each corner once: on a periodic axis corner n is corner 0 again
+            once = np.ones(tuple(m + 1 for m in g.shape()), dtype=bool)
+            for a, p in enumerate(self.bc.periodic):
+                if p:
+                    once[(slice(None),) * a + (-1,)] = False
             e_el = 0.0
             per = []
             for k, law in enumerate(params.laws):
@@ -1954,7 +1970,7 @@ class Model:
                 for _ in range(nd):
                     psi_fn = jax.vmap(psi_fn)
                 psi = psi_fn(d["F"][k])
-                e_k = jnp.sum(jnp.where(d["valid"][k], d["ws_c"][k] * psi / Jk[k], 0.0)) * dA
+                e_k = jnp.sum(jnp.where(d["valid"][k] & once, d["ws_c"][k] * psi / Jk[k], 0.0)) * dA
                 e_el = e_el + e_k
                 ws = d["ws_n"][k]
                 area = jnp.sum(ws) * dA
@@ -1982,8 +1998,12 @@ class Model:
             if more is None:
                 continue
             more = dict(more(self, state, params, d))
-            for p, extra in zip(out.get("solids", []), more.pop("solids", []), strict=False):
-                p.update(extra)
+            extra = more.pop("solids", [])
+            if isinstance(out.get("solids"), window_diagnostics.SolidRows):
+                out["solids"] = out["solids"].merged(extra)
+            else:
+                for p, e in zip(out.get("solids", []), extra, strict=False):
+                    p.update(e)
             if "pairs" in more:
                 out.setdefault("pairs", {}).update(more.pop("pairs"))
             out.update(more)
@@ -1994,23 +2014,35 @@ class Model:
         arrays whose axes :meth:`frame_array_dims` names.  Per solid its centroid and mean
         velocity (N, 2), area, min and max J (N,); plus the arrays of body-force terms that
         have them (:meth:`refmap.contact.Contact.frame_arrays`: contact forces, gaps and
-        overlap areas)."""
+        overlap areas).  Solids stored in windows: from each solid's window, as in
+        :meth:`diagnostics`."""
+        from refmap import window_diagnostics
+
         out = {}
         if not self.n_solids:
             return out
-        state = self.on_grid(state)
-        diag = self.diagnostics(state, params)
-        per = diag["solids"]
+        if self.windowed(state) and window_diagnostics.applies(self):
+            f = window_diagnostics.fields(self, state)
+            num = window_diagnostics.solid_numbers(self, state, params, f)
+            out["solid_centroid"] = num["centroid"]
+            out["solid_velocity"] = num["velocity"]
+            for key in ("area", "J_min", "J_max"):
+                out[f"solid_{key}"] = num[key]
+            d = dict(self.derived(state, params), solid_windows=f)
+        else:
+            state = self.on_grid(state)
+            diag = self.diagnostics(state, params)
+            per = diag["solids"]
 
-        def col(key):
-            return jnp.stack([p[key] for p in per])
+            def col(key):
+                return jnp.stack([p[key] for p in per])
 
-        axes = "xyz"[: self.ndim]
-        out["solid_centroid"] = jnp.stack([col("centroid_" + a) for a in axes], axis=-1)
-        out["solid_velocity"] = jnp.stack([col("velocity_" + a) for a in axes], axis=-1)
-        for key in ("area", "J_min", "J_max"):
-            out[f"solid_{key}"] = col(key)
-        d = self.derived(state, params)
+            axes = "xyz"[: self.ndim]
+            out["solid_centroid"] = jnp.stack([col("centroid_" + a) for a in axes], axis=-1)
+            out["solid_velocity"] = jnp.stack([col("velocity_" + a) for a in axes], axis=-1)
+            for key in ("area", "J_min", "J_max"):
+                out[f"solid_{key}"] = col(key)
+            d = self.derived(state, params)
         for term in self.body_forces:
             more = getattr(term, "frame_arrays", None)
             if more is not None:
@@ -2042,8 +2074,19 @@ class Model:
 
     def output_fields(self, state: State, params: Params, solve=None):
         """Fields written to each frame (numpy-convertible), with physical names.
-        ``solve`` as in :meth:`diagnostics`."""
-        state = self.on_grid(state)
+        ``solve`` as in :meth:`diagnostics`.
+
+        Solids on the whole grid: per solid ``phi``, ``xi_x``, ``xi_y`` (nodes) and ``J``
+        (corners, NaN where the solid's stress is not taken), each ``(S, *grid)``.  Solids
+        stored in windows (:meth:`windowed`, whatever their number, so that a run's files
+        have one layout however large it is): no ``(S, *grid)`` array, which at 1000 discs
+        on 1024^2 would be 8 GB a field and frame, but the fields of
+        :meth:`_window_output` (the union level set ``phi``, ``solid_index`` and the
+        nearest solid's ``J`` on the grid; the windows ``phi_window``, ``xi_window`` and
+        their ``origin``, from which :meth:`on_grid` rebuilds the per-solid fields
+        exactly; :class:`refmap.simulation.Simulation` writes these three in a group of
+        their own)."""
+        windowed = self.windowed(state)
         d = self.derived(state, params)
         p_fluid = params.fluid.lambda_f * (state.rho_f / params.fluid.rho0 - 1.0)
         pressure = self._mean_pressure(d)
@@ -2064,12 +2107,85 @@ class Model:
         out.update(rho_f=state.rho_f, rho=d["rho"], p_fluid=p_fluid, pressure=pressure)
         for name in SYM_COMPONENTS[nd]:
             out["sigma_" + name] = d["s" + name]
-        if self.n_solids:
+        if self.n_solids and windowed:
+            out.update(self._window_output(state))
+        elif self.n_solids:
             out["phi"] = state.phi
             for a, name in enumerate("xyz"[:nd]):
                 out["xi_" + name] = state.xi[:, a]
             out["J"] = jnp.where(d["valid"], d["J"], jnp.nan)
         return out
+
+    def _window_output(self, state: State) -> dict:
+        """The solids' part of :meth:`output_fields` for solids stored in windows, made from
+        the windows one after the other (:func:`refmap.windows.accumulate`), no
+        ``(S, *grid)`` array formed:
+
+        * ``phi`` (nodes): the union level set, the least of every solid's ``phi`` at each
+          node, ``phi_max h`` (the far value of :meth:`on_grid`) where no window lies:
+          the minimum over solids of ``on_grid(state).phi``, exactly;
+        * ``solid_index`` (nodes, int32): the solid whose ``phi`` is that least value (the
+          lowest index on a tie, as ``argmin``), -1 where it is not below ``phi_max h``;
+        * ``J`` (corners): ``1 / det(grad xi)`` of the nearest solid among those whose
+          stress is taken at the corner (``phic < stress_band h`` and ``det > 1e-12``, as
+          :meth:`derived`), the nearest by the corner level set ``phic`` (lowest index on a
+          tie), NaN where none is: the per-solid ``J`` of the grid layout merged (equal to
+          round-off, the maps read continuous across a periodic edge as the step reads
+          them);
+        * ``phi_window`` ``(S, *W)``, ``xi_window`` ``(S, d, *W)``, ``origin`` ``(S, d)``:
+          the state's own windows.
+
+        A solid that outgrew its window (origin -1) is left out of the three grid fields
+        (:meth:`on_grid` shows it as NaN; a run stops before writing such a frame)."""
+        nd = self.ndim
+        per = self.bc.periodic
+        shape = tuple(self.grid.shape())
+        W = tuple(state.phi.shape[1:])
+        h = self.h
+        far = self.numerics.phi_max * h
+        S = self.n_solids
+        ok = jnp.all(state.origin >= 0, axis=1)
+        o = jnp.maximum(state.origin, 0)
+        lead = (-1,) + (1,) * nd
+        k = jnp.arange(S, dtype=jnp.int32).reshape(lead)
+
+        # nodes: the union level set and which solid gives it
+        phi_w = jnp.where(ok.reshape(lead), state.phi, jnp.inf)
+        union = windows.accumulate(jnp.full(shape, far, phi_w.dtype), phi_w, o, per, "min")
+        least = windows.blocks(union, o, W, per)
+        cand = jnp.where((phi_w == least) & (least < far), k, S)
+        idx = windows.accumulate(jnp.full(shape, S, jnp.int32), cand, o, per, "min")
+
+        # corners origin .. origin + W of each window, from the window with one linear ghost
+        # layer a side (the window's edges lie beyond the stress band: no corner there counts)
+        phig = jax.vmap(lambda p: windows.ghosted(p, 1, 1, nd))(state.phi)
+        xig = jax.vmap(lambda x, oo: self._window_maps(x, oo, 1, 1))(state.xi, o)
+        phic = corner_average(phig, nd)
+        det, _ = _det_adjugate([grad_corner(xig[:, a], *self.spacing) for a in range(nd)])
+        # a periodic axis holds n distinct corners (corner n is corner 0's copy, appended
+        # after the sums); a walled one n + 1, which a window's W + 1 never pass.  A window
+        # as long as a periodic axis keeps W of its corners (the last is the first's copy)
+        cshape = tuple(n if p else n + 1 for n, p in zip(shape, per, strict=True))
+        Wc = tuple(w if p and w == n else w + 1 for w, n, p in zip(W, shape, per, strict=True))
+        cut = (slice(None),) + tuple(slice(0, w) for w in Wc)
+        phic, det = phic[cut], det[cut]
+        valid = (phic < self.numerics.stress_band * h) & (det > 1e-12) & ok.reshape(lead)
+        J_w = 1.0 / jnp.where(valid, det, 1.0)
+        key = jnp.where(valid, phic, jnp.inf)
+        near = windows.accumulate(jnp.full(cshape, jnp.inf, key.dtype), key, o, per, "min")
+        cand_c = jnp.where(valid & (key == windows.blocks(near, o, Wc, per)), k, S)
+        idx_c = windows.accumulate(jnp.full(cshape, S, jnp.int32), cand_c, o, per, "min")
+        mine = windows.blocks(idx_c, o, Wc, per) == k
+        J = windows.accumulate(jnp.full(cshape, jnp.inf, J_w.dtype), jnp.where(mine, J_w, jnp.inf),
+                               o, per, "min")
+        J = jnp.where(idx_c < S, J, jnp.nan)
+        for a in range(nd):
+            if per[a]:
+                J = jnp.concatenate([J, lax.slice_in_dim(J, 0, 1, axis=a)], axis=a)
+        return {
+            "phi": union, "solid_index": jnp.where(idx < S, idx, -1), "J": J,
+            "phi_window": state.phi, "xi_window": state.xi, "origin": state.origin,
+        }
 
     def _mean_pressure(self, d):
         """Minus the mean normal stress at the corners, -tr(sigma) / d."""

@@ -1,8 +1,11 @@
 """What a user reaches for after a run: a picture of one field at one time, a movie, and a
 summary of the run (``refmap plot``, ``refmap movie``, ``refmap info``).
 
-The functions return paths, data and strings; the command line only prints them.  Bad
-arguments (no such run folder, an unknown field, a time outside the run, a solid that does
+The functions return paths, data and strings; the command line only prints them.  A run
+whose solids are stored in windows (``numerics.solid_storage = "window"``) stores the union of
+their level sets as ``phi``, a ``solid_index`` and the nearest solid's ``J`` on the grid;
+one solid's ``phi`` (``--solid``) and its map ``xi_x``, ``xi_y`` are rebuilt from the frame's
+windows (:func:`refmap.io.per_solid_fields`).  Bad arguments (no such run folder, an unknown field, a time outside the run, a solid that does
 not exist) raise :class:`PostprocessError` with a one-line message naming the value.
 """
 
@@ -14,8 +17,15 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from refmap.io import DERIVED_FIELDS, derived_field, list_frames, read_frame, read_metadata
-from refmap.io._common import grid_from_attrs
+from refmap.io import (
+    DERIVED_FIELDS,
+    derived_field,
+    list_frames,
+    per_solid_fields,
+    read_frame,
+    read_metadata,
+)
+from refmap.io._common import WINDOWS_GROUP, frame_ndim, grid_from_attrs
 
 __all__ = [
     "PostprocessError",
@@ -72,12 +82,36 @@ def nearest_frame(run_dir, time: float) -> tuple[int, float, Path]:
 
 
 def available_fields(run_dir) -> tuple[list[str], list[str]]:
-    """``(stored, derived)`` field names of a run (from its first readable frame)."""
+    """``(stored, derived)`` field names of a run (from its first readable frame); the
+    stored ones include the solids' maps ``xi_*`` of a run whose solids are stored in
+    windows (rebuilt from them)."""
     _, _, path = frame_times(run_dir)[0]
     with h5py.File(path, "r") as f:
-        stored = sorted(f["fields"].keys())
+        stored = set(f["fields"].keys())
+        if WINDOWS_GROUP in f:
+            stored |= {f"xi_{a}" for a in "xyz"[: frame_ndim(f.attrs)]}
+    stored = sorted(stored)
     derived = [d for d in DERIVED_FIELDS if d not in stored]
     return stored, derived
+
+
+def _from_windows(field: str, source, solid: int | None) -> bool:
+    """Whether ``field`` of the frame ``source`` is one solid's level set or map rebuilt
+    from the frame's windows: ``xi_*``, or ``phi`` with a solid named (``phi`` alone is the
+    stored union)."""
+    return bool(source[2].get("windows")) and (field.startswith("xi_") or (field == "phi" and solid is not None))
+
+
+def _rebuilt(field: str, source, solid: int | None):
+    """``(data, solid)``: one solid's ``field`` rebuilt from the frame's windows."""
+    n = source[2]["windows"]["phi_window"].shape[0]
+    if solid is None:
+        if n != 1:
+            raise PostprocessError(f"field {field!r} is per solid ({n} solids); pass --solid 0..{n - 1}")
+        solid = 0
+    if not (isinstance(solid, int) and 0 <= solid < n):
+        raise PostprocessError(f"solid {solid} does not exist; field {field!r} has solids 0..{n - 1}")
+    return per_solid_fields(source, solid)[field], solid
 
 
 def _check_field(run_dir, field: str) -> None:
@@ -114,12 +148,15 @@ def field_at(run_dir, field: str, time: float, solid: int | None = None) -> dict
     index, t, path = nearest_frame(run_dir, time)
     source = read_frame(path)
     _, fields, attrs = source
-    try:
-        data = derived_field(source, field)
-    except ValueError as exc:
-        raise PostprocessError(str(exc).splitlines()[0]) from None
     grid = grid_from_attrs(attrs)
-    data, solid = _pick_solid(field, np.asarray(data, dtype=np.float64), solid, grid.ndim)
+    if _from_windows(field, source, solid):
+        data, solid = _rebuilt(field, source, solid)
+    else:
+        try:
+            data = derived_field(source, field)
+        except ValueError as exc:
+            raise PostprocessError(str(exc).splitlines()[0]) from None
+        data, solid = _pick_solid(field, np.asarray(data, dtype=np.float64), solid, grid.ndim)
     return {
         "grid": grid,
         "time": t,
@@ -168,10 +205,13 @@ def make_run_movie(run_dir, field: str, out=None, fps: int = 15, solid: int | No
     _, _, path = frame_times(run_dir)[0]
     try:
         source = read_frame(path)
-        first = np.asarray(derived_field(source, field))
+        first = None if _from_windows(field, source, solid) else np.asarray(derived_field(source, field))
     except ValueError as exc:
         raise PostprocessError(str(exc).splitlines()[0]) from None
-    _, solid = _pick_solid(field, first, solid, grid_from_attrs(source[2]).ndim)
+    if first is None:
+        _, solid = _rebuilt(field, source, solid)
+    else:
+        _, solid = _pick_solid(field, first, solid, grid_from_attrs(source[2]).ndim)
     if out is None:
         out = run_dir / f"{_label(field, solid)}.mp4"
     return make_movie(run_dir, field, out, fps=fps, solid=solid)

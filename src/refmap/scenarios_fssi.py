@@ -1,7 +1,7 @@
 """Fluid-solid-solid scenarios (thesis section 4.11): several soft solids in one fluid, with
 contact (:class:`refmap.contact.Contact`).
 
-Importing this module registers three scenarios with :func:`refmap.scenarios.scenario`:
+Importing this module registers five scenarios with :func:`refmap.scenarios.scenario`:
 
 * ``two_balls`` -- an anchored ball and a mobile ball pressed together by a flow entering
   from the left (thesis Fig. 4-32);
@@ -12,7 +12,9 @@ Importing this module registers three scenarios with :func:`refmap.scenarios.sce
   see the function);
 * ``suspension`` -- a hundred small soft discs, half heavier and half lighter than the
   fluid, on a jittered lattice in a closed box: the heavy ones sink, the light ones rise,
-  and they pass each other (the many-body case of the peer RMT codes).
+  and they pass each other (the many-body case of the peer RMT codes);
+* ``dense_suspension`` -- the same at the peer codes' resolution, a thousand discs at the
+  default 1024^2, each stored in a window that follows it.
 
 Common parameters are the thesis's: domain [-2, 2]^2, compressible neo-Hookean solids with
 G = kappa = 10 (density 1 unless stated), fluid rho_f0 = 1, lambda_f = 1, eta = 0.12, extra
@@ -31,6 +33,7 @@ Each returns a plain :class:`refmap.case.Case` whose ``contact`` field holds the
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from refmap.anchors import RegionAnchor
@@ -44,7 +47,8 @@ from refmap.model import Solid
 from refmap.scenarios import DESCRIPTIONS, scenario
 from refmap.state import FluidParams, Numerics
 
-__all__ = ["two_balls", "ball_stick", "settle", "suspension", "suspension_discs", "SETTLE_BALLS"]
+__all__ = ["two_balls", "ball_stick", "settle", "suspension", "dense_suspension", "suspension_discs",
+           "SETTLE_BALLS"]
 
 
 #: every FSSI scenario: energy-consistent compression (the film between pressed bodies) and
@@ -248,3 +252,32 @@ def suspension(n: int = 128, count: int = 100) -> Case:
         for k, (c, r, rho) in enumerate(suspension_discs(count))
     )
     return _settling_box("suspension", n, solids, t_end=10.0, frames=50)
+
+
+#: ``dense_suspension``: discs at the default grid (1024^2), and the grid size they scale with
+DENSE_COUNT, DENSE_N = 1000, 1024
+
+
+@scenario(
+    "dense_suspension",
+    "a thousand soft discs (at 1024^2; fewer on coarser grids, each 20 cells across) "
+    "sinking and rising in a closed box, each stored in a window that follows it",
+)
+def dense_suspension(n: int = DENSE_N) -> Case:
+    # the suspension's discs (30 % of the box, densities 1.5 and 0.6, settle's fluid) at
+    # the peer codes' resolution of about 20 cells across (19 at 300^2 in `suspension`):
+    # round(1000 (n / 1024)^2) discs, so 1000 at the default 1024^2, 16 at 128^2 and 4 at
+    # 64^2 (at least 4: fewer do not fit the lattice at 30 %; at 64^2 a disc's window would
+    # be more than half the grid, so the model keeps the discs on the grid there).  Every
+    # disc keeps its reference map and level set in a window of about 61^2 nodes that
+    # follows it (Numerics.solid_storage = "window", docs/design_windows.md): on the
+    # whole grid the 1000 discs would need about 1 TB; in windows the run peaks at about
+    # 3.3 GB and a step takes about 5.6 s on one core (docs/benchmarks.md, "A thousand
+    # discs").  The default end time is short for that cost (~2900 steps to t = 1).
+    count = max(4, round(DENSE_COUNT * (n / DENSE_N) ** 2))
+    solids = tuple(
+        Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"disc{k} (rho={rho:g})")
+        for k, (c, r, rho) in enumerate(suspension_discs(count))
+    )
+    case = _settling_box("dense_suspension", n, solids, t_end=1.0, frames=20)
+    return case.replace(numerics=dataclasses.replace(case.numerics, solid_storage="window"))

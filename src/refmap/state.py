@@ -249,8 +249,9 @@ class Numerics:
     advection, pinning and re-distancing, extrapolation and smoothing), the stress, blend
     weights and density and the contact run; same results to round-off, for many small
     bodies much faster (100 discs at 300^2: 2.6x per step).  A body that outgrows its box
-    stops the run with a message.  Output files, diagnostics and ``Model.on_grid(state)``
-    give the whole-grid fields.  The state stays on the whole grid (only the stress,
+    stops the run with a message.  Output frames hold the union of the level sets on the
+    grid and the windows themselves (docs/restart.md); ``Model.on_grid(state)`` gives the
+    whole-grid fields.  The state stays on the whole grid (only the stress,
     weights and density, and where they apply the band work and contact, on boxes cut
     from it each step, falling back on the whole grid in a step where a body outgrew its
     box) for an anchored solid, a solid glued to a wall at t = 0, a body whose box would

@@ -14,6 +14,12 @@ Reading::
     w = derived_field(ds, "vorticity")
     make_movie("runs/disc", "vorticity", "runs/disc/vorticity.mp4")
 
+A run whose solids are stored in windows (``Numerics.solid_storage = "window"``) writes the
+union of their level sets (``phi``), ``solid_index`` and the nearest solid's ``J`` on the grid
+and the windows in a group of their own (:mod:`refmap.io.writer`); ``per_solid_fields(path)``
+rebuilds each solid's whole-grid ``phi`` and ``xi_*``, ``read_state(path)`` the State to
+start a run from.
+
 A run on a :class:`~refmap.grid.Grid3D` is written and read the same way (arrays
 ``[i, j, k]``, a 3DCoRectMesh in run.xdmf); its pictures and movies show a plane of the
 field (``slice_axis=``, ``slice_index=``, ``slice_at=``; default the middle z plane), and
@@ -31,7 +37,15 @@ from refmap.io.pictures import (
     save_panel_png,
     save_surface_png,
 )
-from refmap.io.reader import list_frames, open_diagnostics, open_run, read_frame, read_metadata
+from refmap.io.reader import (
+    list_frames,
+    open_diagnostics,
+    open_run,
+    per_solid_fields,
+    read_frame,
+    read_metadata,
+    read_state,
+)
 from refmap.io.writer import RunWriter
 
 __all__ = [
@@ -44,9 +58,11 @@ __all__ = [
     "make_movie",
     "open_diagnostics",
     "open_run",
+    "per_solid_fields",
     "plot_field",
     "read_frame",
     "read_metadata",
+    "read_state",
     "save_frame_png",
     "save_panel_png",
     "save_surface_png",

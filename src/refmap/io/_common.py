@@ -27,12 +27,15 @@ GRID_KEYS = ("nx", "ny", "ax", "bx", "ay", "by", "dx", "dy")
 #: the grid keys a 3D frame adds (attributes holding nz, az and bz describe a 3D grid)
 GRID_KEYS_3D = ("nz", "az", "bz", "dz")
 RESERVED_FRAME_ATTRS = frozenset(
-    ("time", "index", "format", "layout", "locations", "diagnostics", "diagnostic_dims", *GRID_KEYS)
+    ("time", "index", "format", "layout", "locations", "diagnostics", "diagnostic_dims", "windows",
+     *GRID_KEYS)
 )
 #: reserved attribute names of a 3D frame (the 2D set is left as it was)
 RESERVED_FRAME_ATTRS_3D = RESERVED_FRAME_ATTRS | frozenset(GRID_KEYS_3D)
 #: HDF5 group of a frame's small per-solid / per-pair arrays
 DIAGNOSTICS_GROUP = "diagnostics"
+#: HDF5 group of a frame's solid windows (solids stored in windows; refmap.io.writer)
+WINDOWS_GROUP = "windows"
 
 FRAME_RE = re.compile(r"^frame_(\d+)\.h5$")
 

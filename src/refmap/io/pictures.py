@@ -222,8 +222,10 @@ def plot_field(
     switches to filled contours.  Without ``vmin``/``vmax`` the range is the data range,
     symmetric about zero if the data change sign.
 
-    ``phis``: level sets of the solids on the nodes, ``(nsolid, nx, ny)`` or ``(nx, ny)``;
-    each interface phi = 0 is drawn as a thin black line.  ``blur_edges=True`` also draws the
+    ``phis``: level sets of the solids on the nodes, ``(nsolid, nx, ny)`` or ``(nx, ny)``
+    (one solid's, or the union of all, which a run whose solids are stored in windows
+    writes as ``phi``: one contour for a thousand bodies); each interface phi = 0 is drawn
+    as a thin black line.  ``blur_edges=True`` also draws the
     edges of the blur zone, phi = +-2 dx, as thin grey dashed lines (a number gives another
     half-width).  ``velocity=(u, v)`` (node or corner arrays) adds a subsampled quiver plot,
     about 24 arrows across unless ``quiver_every`` sets the stride.
@@ -549,6 +551,26 @@ def save_panel_png(
     return path
 
 
+def _solid_field_from_windows(run_dir, ds, grid, field: str, solid: int | None):
+    """``(DataArray (time, x, y[, z]), solid)``: one solid's ``phi`` or ``xi_*`` in every
+    frame of ``ds`` (a run whose solids are stored in windows), rebuilt from the frames'
+    windows by :func:`refmap.io.per_solid_fields`, one frame at a time."""
+    from refmap.io.reader import list_frames, per_solid_fields, read_frame
+
+    paths = dict(list_frames(run_dir))
+    values = []
+    for index in ds["index"].values:
+        source = read_frame(paths[int(index)])
+        n = source[2]["windows"]["phi_window"].shape[0] if source[2]["windows"] else 0
+        if solid is None:
+            if n != 1:
+                raise ValueError(f"{field!r} is a per-solid field with {n} solids; pass solid=")
+            solid = 0
+        values.append(per_solid_fields(source, solid)[field])
+    dims = ("time", *("x", "y", "z")[: grid.ndim])
+    return xr.DataArray(np.stack(values), dims=dims, coords={"time": ds["time"].values}), solid
+
+
 # ---------------------------------------------------------------------- derived fields
 def _unpack_source(source, grid):
     """-> (getter mapping, grid, is_dataset)."""
@@ -699,7 +721,8 @@ def make_movie(
     range is fixed over the whole movie: ``vmin``/``vmax`` if given, else the 1st/99th
     percentiles over all frames, made symmetric about zero (a field that never changes sign
     gets [0, p99] or [p1, 0] instead, with a sequential colour map unless ``cmap`` is given).
-    The interfaces are drawn from the per-solid node field ``phi_name`` when the run has it;
+    The interfaces are drawn from the node field ``phi_name`` when the run has it (per solid,
+    or the union of the solids' level sets of a run whose solids are stored in windows);
     ``velocity=True`` overlays a quiver of (u, v).  Frames are drawn with the Agg canvas,
     cropped to even width and height, and piped to the ffmpeg shipped with imageio-ffmpeg.
     The movie is written under a temporary name and moved into place when complete.
@@ -715,7 +738,12 @@ def make_movie(
 
     ds = open_run(run_dir)
     grid = grid_from_attrs(ds.attrs)
-    da = derived_field(ds, field)
+    if "solid_index" in ds and (field.startswith("xi_") or (field == phi_name and solid is not None)):
+        # solids stored in windows: one solid's level set or map rebuilt from each frame's
+        # windows (the grid holds their union only)
+        da, solid = _solid_field_from_windows(run_dir, ds, grid, field, solid)
+    else:
+        da = derived_field(ds, field)
     if "solid" in da.dims:
         if solid is None:
             if da.sizes["solid"] != 1:

@@ -17,11 +17,30 @@ Frame file layout (HDF5)::
                         plus the caller's extra attrs
     /x, /y       node (cell-centre) axes, lengths nx and ny
     /xc, /yc     corner axes, lengths nx+1 and ny+1
-    /fields/<name>  float64, attrs location ("node"|"corner"), per_solid (bool), dims
+    /fields/<name>  float64 (int32 for an integer field, e.g. solid_index), attrs location
+                    ("node"|"corner"), per_solid (bool), dims
     /diagnostics/<name>  optional small float64 arrays (per-solid, per-pair numbers), attr
                      dims (axis names, space-separated, e.g. "solid other_solid"), stored
                      as given (not transposed)
     /xdmf/zero_<loc>  zeros used only as the third velocity component in run.xdmf
+    /windows/<name>  optional: the solids stored in windows (see below)
+
+Solids stored in windows (``Numerics.solid_storage = "window"``; docs/restart.md).  Such a
+run cannot write S whole-grid level sets and maps a frame (8 GB a field at 1000 discs on
+1024^2), so :class:`refmap.simulation.Simulation` writes, whatever the number of solids,
+the grid fields ``phi`` (the union level set, the least of the solids'), ``solid_index``
+(int32: the solid giving it, -1 where none is within ``phi_max h``) and ``J`` (the nearest
+solid's) in ``/fields``, and the windows themselves in ``/windows``: ``phi_window``
+``(S, *W)`` and ``xi_window`` ``(S, d, *W)`` (float64), ``origin`` ``(S, d)`` (int32, each
+window's first node; a periodic axis wraps round; -1 for a body that outgrew its window),
+with group attrs ``far`` (``phi_max h``, a level set's value outside its window) and
+``periodic`` (one flag per axis).  These are stored in the solver's order, *not*
+transposed (dims attrs ``"solid wx wy"``, ``"solid xy wx wy"``, ``"solid xy"``; 3D
+``wz`` and ``xyz``), as a checkpoint holds them; the group is not in run.xdmf.
+:func:`refmap.io.per_solid_fields` rebuilds each solid's whole-grid ``phi`` and ``xi_*``
+from them, exactly as ``Model.on_grid`` does, and :func:`refmap.io.read_state` the
+State.  A run whose solids are on the grid writes the per-solid fields as before and no
+``/windows``.
 
 Axis order on disk.  The solver's arrays are indexed ``[i, j]`` (i along x).  XDMF and
 ParaView read a structured block with x varying fastest, i.e. a C-ordered ``[j, i]`` array,
@@ -85,6 +104,7 @@ from refmap.io._common import (
     RESERVED_FRAME_ATTRS,
     RESERVED_FRAME_ATTRS_3D,
     TMP_SUFFIX,
+    WINDOWS_GROUP,
     XDMF_FILE,
     atomic_write_bytes,
     frame_name,
@@ -117,6 +137,59 @@ class _FieldRecord:
     name: str
     location: str  # "node" | "corner"
     nsolid: int  # 0 for a field without a solid axis
+    number: str = "Float"  # XDMF NumberType and Precision of the dataset
+    precision: int = 8
+
+
+def xdmf_number(dtype) -> tuple[str, int]:
+    """XDMF ``(NumberType, Precision)`` of a field dataset's dtype: ``("Int", 4)`` for the
+    int32 of an integer field, ``("Float", 8)`` for float64."""
+    dtype = np.dtype(dtype)
+    return ("Int", dtype.itemsize) if dtype.kind in "iu" else ("Float", dtype.itemsize)
+
+
+def _field_array(name: str, value: Any) -> np.ndarray:
+    """A field as stored: int32 for integer or boolean values (a solid index), float64
+    otherwise (ValueError for integers outside int32's range)."""
+    arr = np.asarray(value)
+    if arr.dtype.kind in "biu":
+        if arr.size and (arr.min() < np.iinfo(np.int32).min or arr.max() > np.iinfo(np.int32).max):
+            raise ValueError(f"integer field {name!r} does not fit int32")
+        return arr.astype(np.int32)
+    return np.asarray(value, dtype=np.float64)
+
+
+#: the arrays of a frame's window group, and its attributes
+WINDOW_ARRAYS = ("phi_window", "xi_window", "origin")
+WINDOW_ATTRS = ("far", "periodic")
+
+
+def _prepare_windows(windows: dict, ndim: int) -> tuple[dict, dict]:
+    """``({name: (dims, array)}, attrs)`` of a frame's ``windows`` argument, checked."""
+    keys = set(windows)
+    want = set(WINDOW_ARRAYS) | set(WINDOW_ATTRS)
+    if keys != want:
+        raise ValueError(f"windows must hold exactly {sorted(want)}, got {sorted(keys)}")
+    phi = np.asarray(windows["phi_window"], dtype=np.float64)
+    xi = np.asarray(windows["xi_window"], dtype=np.float64)
+    origin = np.asarray(windows["origin"])
+    if phi.ndim != ndim + 1:
+        raise ValueError(f"phi_window must be (S, *W) with {ndim} window axes, got {phi.shape}")
+    S, W = phi.shape[0], phi.shape[1:]
+    if xi.shape != (S, ndim, *W):
+        raise ValueError(f"xi_window must be {(S, ndim, *W)} (phi_window {phi.shape}), got {xi.shape}")
+    if origin.shape != (S, ndim) or origin.dtype.kind not in "iu":
+        raise ValueError(f"origin must be {(S, ndim)} integers, got {origin.shape} {origin.dtype}")
+    periodic = np.asarray(windows["periodic"], dtype=bool)
+    if periodic.shape != (ndim,):
+        raise ValueError(f"periodic must hold one flag per axis ({ndim}), got {periodic.shape}")
+    comp, axes = ("xy", "wx wy") if ndim == 2 else ("xyz", "wx wy wz")
+    arrays = {
+        "phi_window": (f"solid {axes}", phi),
+        "xi_window": (f"solid {comp} {axes}", xi),
+        "origin": (f"solid {comp}", origin.astype(np.int32)),
+    }
+    return arrays, {"far": float(windows["far"]), "periodic": periodic}
 
 
 @dataclass(frozen=True)
@@ -299,6 +372,7 @@ class RunWriter:
         fields: dict[str, Any],
         attrs: dict | None = None,
         diagnostics: dict[str, Any] | None = None,
+        windows: dict[str, Any] | None = None,
     ) -> Path:
         """Save one snapshot as ``frames/frame_{index:05d}.h5`` and refresh run.xdmf.
 
@@ -307,11 +381,12 @@ class RunWriter:
         always taken as per-solid, so vector fields must be split into components (``u``,
         ``v``) first.  On a 3D grid the arrays are indexed ``[i, j, k]``: ``(nx, ny, nz)``,
         ``(nx+1, ny+1, nz+1)``, a 4D array is per-solid and velocity comes as ``u``, ``v``,
-        ``w``.  Values are stored as float64.  Any other shape raises ValueError naming the
+        ``w``.  Values are stored as float64, integer (and boolean) ones as int32 (run.xdmf
+        then says ``NumberType="Int"``).  Any other shape raises ValueError naming the
         field.  ``attrs`` are extra scalar/array/string attributes for the file (other
         values are stored as JSON strings); they may not reuse the reserved names time,
-        index, format, layout, locations, diagnostics, diagnostic_dims or the grid keys
-        (in 3D also nz, az, bz, dz).
+        index, format, layout, locations, diagnostics, diagnostic_dims, windows or the grid
+        keys (in 3D also nz, az, bz, dz).
 
         ``diagnostics`` maps names to small arrays of numbers that belong to the frame but
         live on no grid (per-solid centroids, contact forces, per-pair gaps...): each value
@@ -320,6 +395,11 @@ class RunWriter:
         ``/diagnostics`` as float64 and come back from :func:`refmap.io.read_frame`
         (``attrs["diagnostics"]``) and :func:`refmap.io.open_run` (variables with dims
         ``("time", *dims)``).  A name may not also be a field name.
+
+        ``windows`` (solids stored in windows, see the module docstring): a dict with the
+        arrays ``phi_window`` ``(S, *W)``, ``xi_window`` ``(S, d, *W)``, ``origin`` ``(S, d)``
+        (integers) in the solver's order, and ``far`` (a float) and ``periodic`` (one bool
+        per axis); written to the group ``/windows``, not listed in run.xdmf.
 
         Writing an index again replaces that frame.  Returns the path of the frame file.
         """
@@ -339,13 +419,15 @@ class RunWriter:
         for name, value in fields.items():
             if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
                 raise ValueError(f"invalid field name {name!r}")
-            arr = np.asarray(value, dtype=np.float64)
+            arr = _field_array(name, value)
             location, per_solid = infer_location(self.grid, name, arr.shape)
             disk = to_disk(arr, ndim)
-            prepared.append((_FieldRecord(name, location, arr.shape[0] if per_solid else 0), disk))
+            rec = _FieldRecord(name, location, arr.shape[0] if per_solid else 0, *xdmf_number(disk.dtype))
+            prepared.append((rec, disk))
 
         by_name = {rec.name: rec for rec, _ in prepared}
         small = _prepare_diagnostics(diagnostics or {}, by_name, ndim)
+        win = None if windows is None else _prepare_windows(windows, ndim)
         zero_loc = None  # 2D only: the velocity vector's zero third component
         u, v = by_name.get("u"), by_name.get("v")
         if ndim == 2 and u and v and u.nsolid == 0 and v.nsolid == 0 and u.location == v.location:
@@ -383,6 +465,13 @@ class RunWriter:
                     for name, (dims, arr) in small.items():
                         ds = dg.create_dataset(name, data=arr)
                         ds.attrs["dims"] = " ".join(dims)
+                if win is not None:
+                    wg = f.create_group(WINDOWS_GROUP)
+                    for name, (dims, arr) in win[0].items():
+                        ds = wg.create_dataset(name, data=arr, **self._compression)
+                        ds.attrs["dims"] = dims
+                    for k, val in win[1].items():
+                        wg.attrs[k] = val
                 if zero_loc is not None:
                     shape = self.grid.shape(zero_loc)[::-1]
                     f.create_group("xdmf").create_dataset(
@@ -454,24 +543,25 @@ class RunWriter:
 
 
 # ---------------------------------------------------------------------- XDMF
-def _data_item(parent: ET.Element, dims: tuple[int, ...], text: str, fmt: str = "HDF") -> None:
+def _data_item(parent: ET.Element, dims: tuple[int, ...], text: str, fmt: str = "HDF",
+               number: tuple[str, int] = ("Float", 8)) -> None:
     item = ET.SubElement(
         parent,
         "DataItem",
         Format=fmt,
-        NumberType="Float",
-        Precision="8",
+        NumberType=number[0],
+        Precision=str(number[1]),
         Dimensions=" ".join(str(d) for d in dims),
     )
     item.text = text
 
 
-def _scalar_attribute(parent, name, center, dims, ref) -> None:
+def _scalar_attribute(parent, name, center, dims, ref, number=("Float", 8)) -> None:
     attr = ET.SubElement(parent, "Attribute", Name=name, AttributeType="Scalar", Center=center)
-    _data_item(attr, dims, ref)
+    _data_item(attr, dims, ref, number=number)
 
 
-def _hyperslab_attribute(parent, name, center, dims, nsolid, k, ref) -> None:
+def _hyperslab_attribute(parent, name, center, dims, nsolid, k, ref, number=("Float", 8)) -> None:
     attr = ET.SubElement(parent, "Attribute", Name=name, AttributeType="Scalar", Center=center)
     slab = ET.SubElement(
         attr,
@@ -486,7 +576,7 @@ def _hyperslab_attribute(parent, name, center, dims, nsolid, k, ref) -> None:
     stride = " ".join(["1"] * rank)
     count = " ".join(["1", *(str(d) for d in dims)])
     sel.text = f"{start}  {stride}  {count}"
-    _data_item(slab, (nsolid, *dims), ref)
+    _data_item(slab, (nsolid, *dims), ref, number=number)
 
 
 def _velocity_parts(grid: Grid | Grid3D, fr) -> tuple[str, list[str]] | None:
@@ -539,11 +629,12 @@ def build_xdmf(grid: Grid | Grid3D, frames) -> str:
         for rec in fr.fields:
             center, dims = ("Node", cdims) if rec.location == "corner" else ("Cell", ndims)
             ref = f"{fr.relpath}:/fields/{rec.name}"
+            number = (rec.number, rec.precision)
             if rec.nsolid:
                 for k in range(rec.nsolid):
-                    _hyperslab_attribute(g, f"{rec.name}_{k}", center, dims, rec.nsolid, k, ref)
+                    _hyperslab_attribute(g, f"{rec.name}_{k}", center, dims, rec.nsolid, k, ref, number)
             else:
-                _scalar_attribute(g, rec.name, center, dims, ref)
+                _scalar_attribute(g, rec.name, center, dims, ref, number)
         vel = _velocity_parts(grid, fr)
         if vel is not None:
             loc, parts = vel
