@@ -176,6 +176,27 @@ class Solid:
             object.__setattr__(self, key, tuple(float(c) for c in vec))
         object.__setattr__(self, "strain", tuple(tuple(float(a) for a in r) for r in A))
 
+    def node_span(self, grid, pad: int):
+        """``(first, last)`` (d,) int: the node indices (unwrapped: they may lie past the
+        grid) of the box that holds the body at t = 0, its shape's ``bbox()`` carried
+        through the inverse of the initial strain (``xi = A (x - c) + c``), with ``pad``
+        nodes to spare on each side; None for a shape without ``bbox()`` (or a singular
+        strain).  ``Case.validate`` and ``Model._initial_boxes`` evaluate the body there
+        instead of on the whole grid."""
+        d = grid.ndim
+        try:
+            bb = np.asarray(self.shape.bbox(), dtype=float).reshape(d, 2)
+            A = np.asarray(self.strain, dtype=float)
+            c = np.asarray(self.strain_center, dtype=float)
+            corners = np.stack(np.meshgrid(*bb, indexing="ij"), axis=-1).reshape(-1, d)
+            x = c + np.linalg.solve(A, (corners - c).T).T
+        except (AttributeError, NotImplementedError, TypeError, ValueError, np.linalg.LinAlgError):
+            return None
+        lows, sp = np.asarray(grid.lows), np.asarray(grid.spacing)
+        first = np.floor((x.min(axis=0) - lows) / sp - 0.5).astype(int) - pad
+        last = np.ceil((x.max(axis=0) - lows) / sp - 0.5).astype(int) + pad
+        return first, last
+
     def initial_map(self, *X):
         """The initial map's components at the coordinates ``X`` (d arrays)."""
         A = self.strain
@@ -401,21 +422,10 @@ class Model:
         d = self.ndim
         shape = g.shape()
         per = self.bc.periodic
-        sp = self.spacing
         pad = math.ceil(n.phi_max) + BAND_WINDOW_MARGIN + SOLID_WINDOW_SLACK + 2
-        lo_hi = []
-        for s in self.solids:
-            try:
-                bb = np.asarray(s.shape.bbox(), dtype=float).reshape(d, 2)
-            except (AttributeError, NotImplementedError, TypeError, ValueError):
-                return None
-            A = np.asarray(s.strain, dtype=float)
-            c = np.asarray(s.strain_center, dtype=float)
-            corners = np.stack(np.meshgrid(*bb, indexing="ij"), axis=-1).reshape(-1, d)
-            x = c + np.linalg.solve(A, (corners - c).T).T  # xi = A (x - c) + c
-            first = np.floor((x.min(axis=0) - np.asarray(g.lows)) / np.asarray(sp) - 0.5).astype(int) - pad
-            last = np.ceil((x.max(axis=0) - np.asarray(g.lows)) / np.asarray(sp) - 0.5).astype(int) + pad
-            lo_hi.append((first, last))
+        lo_hi = [s.node_span(g, pad) for s in self.solids]
+        if any(span is None for span in lo_hi):
+            return None
         box = tuple(int(max(last[a] - first[a] + 1 for first, last in lo_hi)) for a in range(d))
         if any(b >= m for b, m in zip(box, shape, strict=True)):
             return None
@@ -2137,6 +2147,8 @@ class Model:
 
         A solid that outgrew its window (origin -1) is left out of the three grid fields
         (:meth:`on_grid` shows it as NaN; a run stops before writing such a frame)."""
+        from refmap import window_diagnostics
+
         nd = self.ndim
         per = self.bc.periodic
         shape = tuple(self.grid.shape())
@@ -2156,27 +2168,20 @@ class Model:
         cand = jnp.where((phi_w == least) & (least < far), k, S)
         idx = windows.accumulate(jnp.full(shape, S, jnp.int32), cand, o, per, "min")
 
-        # corners origin .. origin + W of each window, from the window with one linear ghost
-        # layer a side (the window's edges lie beyond the stress band: no corner there counts)
-        phig = jax.vmap(lambda p: windows.ghosted(p, 1, 1, nd))(state.phi)
-        xig = jax.vmap(lambda x, oo: self._window_maps(x, oo, 1, 1))(state.xi, o)
-        phic = corner_average(phig, nd)
-        det, _ = _det_adjugate([grad_corner(xig[:, a], *self.spacing) for a in range(nd)])
-        # a periodic axis holds n distinct corners (corner n is corner 0's copy, appended
-        # after the sums); a walled one n + 1, which a window's W + 1 never pass.  A window
-        # as long as a periodic axis keeps W of its corners (the last is the first's copy)
+        # corners origin .. origin + W of each window: the windows' phic, J and where the
+        # stress is taken, as the diagnostics make them (window_diagnostics.fields); a
+        # periodic axis holds n distinct corners (corner n is corner 0's copy, appended
+        # after the sums), a walled one n + 1
+        f = window_diagnostics.fields(self, state)
+        C = tuple(f["phic"].shape[1:])
         cshape = tuple(n if p else n + 1 for n, p in zip(shape, per, strict=True))
-        Wc = tuple(w if p and w == n else w + 1 for w, n, p in zip(W, shape, per, strict=True))
-        cut = (slice(None),) + tuple(slice(0, w) for w in Wc)
-        phic, det = phic[cut], det[cut]
-        valid = (phic < self.numerics.stress_band * h) & (det > 1e-12) & ok.reshape(lead)
-        J_w = 1.0 / jnp.where(valid, det, 1.0)
-        key = jnp.where(valid, phic, jnp.inf)
+        valid = f["valid"]
+        key = jnp.where(valid, f["phic"], jnp.inf)
         near = windows.accumulate(jnp.full(cshape, jnp.inf, key.dtype), key, o, per, "min")
-        cand_c = jnp.where(valid & (key == windows.blocks(near, o, Wc, per)), k, S)
+        cand_c = jnp.where(valid & (key == windows.blocks(near, o, C, per)), k, S)
         idx_c = windows.accumulate(jnp.full(cshape, S, jnp.int32), cand_c, o, per, "min")
-        mine = windows.blocks(idx_c, o, Wc, per) == k
-        J = windows.accumulate(jnp.full(cshape, jnp.inf, J_w.dtype), jnp.where(mine, J_w, jnp.inf),
+        mine = windows.blocks(idx_c, o, C, per) == k
+        J = windows.accumulate(jnp.full(cshape, jnp.inf, key.dtype), jnp.where(mine, f["J"], jnp.inf),
                                o, per, "min")
         J = jnp.where(idx_c < S, J, jnp.nan)
         for a in range(nd):
