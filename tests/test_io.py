@@ -411,6 +411,25 @@ def test_every_solid_interface_is_drawn():
         assert np.hypot(*(v.mean(axis=0) - centre)) < GRID.dx
 
 
+def test_fine_corner_fields_are_drawn_one_quad_per_corner():
+    """A corner field is Gouraud-shaded (its quad mesh's vertices are the corners
+    themselves) on a coarse grid, and drawn as one flat quad per corner past
+    GOURAUD_MAX_POINTS values (its vertices then bound each corner's cell: one more per
+    axis), where Gouraud triangles cost seconds and gigabytes to draw; the image shows the
+    same values either way."""
+    from matplotlib.figure import Figure
+
+    from refmap.io import plot_field
+    from refmap.io.pictures import GOURAUD_MAX_POINTS
+
+    side = int(np.sqrt(GOURAUD_MAX_POINTS))
+    for n, extra in ((32, 0), (side, 1)):
+        g = Grid(n, n, 0.0, 1.0, 0.0, 1.0)
+        X, Y = g.mesh("corner")
+        m = plot_field(Figure().add_subplot(), g, np.sin(3 * X) * Y, "corner")
+        assert m.get_coordinates().shape[:2] == (n + 1 + extra, n + 1 + extra)
+
+
 def _ffmpeg_available() -> bool:
     try:
         import imageio_ffmpeg

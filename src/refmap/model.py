@@ -1957,7 +1957,7 @@ class Model:
                        pressure_cg_residual=info["relative_residual"],
                        pressure_cg_converged=info["converged"])
         if self.n_solids and windowed:
-            f = window_diagnostics.fields(self, state)
+            f = window_diagnostics.fields(self, state, params.laws)
             num = window_diagnostics.solid_numbers(self, state, params, f)
             out["elastic_energy"] = jnp.sum(num["elastic_energy"])
             out["solid_area"] = jnp.sum(num["area"])
@@ -2032,7 +2032,7 @@ class Model:
         if not self.n_solids:
             return out
         if self.windowed(state) and window_diagnostics.applies(self):
-            f = window_diagnostics.fields(self, state)
+            f = window_diagnostics.fields(self, state, params.laws)
             num = window_diagnostics.solid_numbers(self, state, params, f)
             out["solid_centroid"] = num["centroid"]
             out["solid_velocity"] = num["velocity"]

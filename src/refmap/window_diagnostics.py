@@ -43,9 +43,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax import lax
 
 from refmap import blend, windows
-from refmap.materials import map_laws
 from refmap.operators import corner_average, grad_corner
 
 
@@ -61,16 +62,28 @@ def applies(model) -> bool:
     return float(far) == 0.0
 
 
-def fields(model, state):
+#: Solids whose corner fields (``F``, ``J``, the strain energy and their intermediates)
+#: are formed at once in :func:`fields`: a thousand windows of 62^2 corners at once held
+#: about 1 GB of temporaries (``lax.map`` in batches of this size instead).
+SOLID_BATCH = 64
+
+
+def fields(model, state, laws=None):
     """Every solid's fields on its window (``state`` windowed): a dict of
 
     * ``origin`` (S, d): the windows' first nodes (an outgrown window, origin -1, read at 0);
     * ``phi`` (S, *W): the level sets, NaN in a window its body outgrew (as ``on_grid``);
     * ``X`` (S, d, *W): the node coordinates of each window (wrapped round a periodic axis);
     * ``ws_n`` (S, *W): the node fractions of :func:`refmap.model.solid_fractions`;
-    * ``phic``, ``ws_c``, ``J``, ``valid`` (S, *(W + 1)) and ``F`` (S, *(W + 1), d, d): at the
-      corners ``origin .. origin + W`` (those round the window's nodes), as
-      ``Model._solids_full`` makes them on the whole grid."""
+    * ``phic``, ``ws_c``, ``J``, ``valid`` (S, *(W + 1)): at the corners ``origin .. origin +
+      W`` (those round the window's nodes), as ``Model._solids_full`` makes them on the
+      whole grid;
+    * with ``laws`` (one per solid): ``elastic_energy`` (S,), ``sum ws_c psi(F) / J dA``
+      over the corners where the stress is taken.
+
+    ``F``, ``J`` and the strain energy are made :data:`SOLID_BATCH` solids at a time
+    (``lax.map``), so their temporaries do not grow with the number of solids; the values
+    are those of the whole batch at once (the same arithmetic per corner)."""
     from refmap.model import _det_adjugate
 
     g = model.grid
@@ -99,26 +112,71 @@ def fields(model, state):
     base = tuple(m if p else m + 1 for m, p in zip(shape, per, strict=True))
     Tc = windows.blocks(windows.accumulate(jnp.zeros(base, phi.dtype), wc, o, per), o, C, per)
     ws_c = wc * (1.0 / jnp.maximum(Tc, 1.0))
+    dA = g.cell_area if nd == 2 else g.cell_volume
 
-    xig = jax.vmap(lambda x, oo: model._window_maps(x, oo, 1, 1))(state.xi, o)
-    dxi = [grad_corner(xig[:, a], *model.spacing) for a in range(nd)]  # dxi[a][b] = d xi_a / d x_b
-    det, adj = _det_adjugate(dxi)
-    valid = (phic < n.stress_band * h) & (det > 1e-12)
-    safe_det = jnp.where(valid, det, 1.0)
-    F = adj / safe_det[..., None, None]
-    F = jnp.where(valid[..., None, None], F, jnp.eye(nd))
+    def corners(law, xi_k, o_k, phic_k, wsc_k):
+        """One solid's ``J``, ``valid`` (and strain energy with a law) at its corners."""
+        xig = model._window_maps(xi_k, o_k, 1, 1)
+        dxi = [grad_corner(xig[a], *model.spacing) for a in range(nd)]  # dxi[a][b] = d xi_a / d x_b
+        det, adj = _det_adjugate(dxi)
+        valid = (phic_k < n.stress_band * h) & (det > 1e-12)
+        safe_det = jnp.where(valid, det, 1.0)
+        J = jnp.where(valid, 1.0 / safe_det, 1.0)
+        if law is None:
+            return J, valid
+        F = adj / safe_det[..., None, None]
+        F = jnp.where(valid[..., None, None], F, jnp.eye(nd))
+        psi = _psi(law, F, nd)
+        return J, valid, jnp.sum(jnp.where(valid, wsc_k * psi / J, 0.0)) * dA
+
+    out = _by_law(corners, laws, state.xi, o, phic, ws_c)
     X = jax.vmap(lambda oo: windows.coordinates(oo, W, g.lows, model.spacing, shape, per))(o)
-    return dict(origin=o, phi=phi, X=X, ws_n=ws_n, phic=phic, ws_c=ws_c, F=F,
-                J=jnp.where(valid, 1.0 / safe_det, 1.0), valid=valid)
+    f = dict(origin=o, phi=phi, X=X, ws_n=ws_n, phic=phic, ws_c=ws_c, J=out[0], valid=out[1])
+    if laws is not None:
+        f["elastic_energy"] = out[2]
+    return f
+
+
+def _by_law(fn, laws, *per_solid):
+    """``fn(law, *(a[k] for a in per_solid))`` for every solid k (``law`` None when ``laws``
+    is), stacked along a new first axis, :data:`SOLID_BATCH` solids at a time
+    (``lax.map``): the solids grouped by law class and pytree structure, each group's laws
+    stacked into one pytree (as :func:`refmap.materials.law_moduli`), one traced code path
+    per group whatever the number of solids."""
+    S = per_solid[0].shape[0]
+    if laws is None:
+        groups = {None: list(range(S))}
+    else:
+        if len(laws) != S:
+            raise ValueError(f"{len(laws)} laws for {S} solids")
+        groups = {}
+        for k, law in enumerate(laws):
+            groups.setdefault((type(law), jax.tree_util.tree_structure(law)), []).append(k)
+    parts, order = [], []
+    for members in groups.values():
+        whole = len(members) == S
+        args = tuple(a if whole else a[np.asarray(members)] for a in per_solid)
+        if laws is None:
+            res = lax.map(lambda xs: fn(None, *xs), args, batch_size=SOLID_BATCH)
+        else:
+            stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
+                                             *(laws[k] for k in members))
+            res = lax.map(lambda xs: fn(xs[0], *xs[1:]), (stacked,) + args, batch_size=SOLID_BATCH)
+        parts.append(res)
+        order += members
+    if len(parts) == 1:
+        return parts[0]
+    inv = np.argsort(np.asarray(order))
+    return tuple(jnp.concatenate(cols, axis=0)[inv] for cols in zip(*parts, strict=True))
 
 
 def solid_numbers(model, state, params, f=None):
     """The per-solid numbers of :meth:`refmap.model.Model.diagnostics` from the windows
-    (``f``: :func:`fields`, made here when None), as arrays over the solids: ``area`` (S,)
-    (the d-dimensional measure), ``centroid`` and ``velocity`` (S, d), ``J_min``, ``J_max``
-    and ``elastic_energy`` (S,)."""
-    if f is None:
-        f = fields(model, state)
+    (``f``: :func:`fields` with the laws, made here when None), as arrays over the solids:
+    ``area`` (S,) (the d-dimensional measure), ``centroid`` and ``velocity`` (S, d),
+    ``J_min``, ``J_max`` and ``elastic_energy`` (S,)."""
+    if f is None or "elastic_energy" not in f:
+        f = fields(model, state, params.laws)
     g = model.grid
     nd = model.ndim
     dA = g.cell_area if nd == 2 else g.cell_volume
@@ -141,15 +199,13 @@ def solid_numbers(model, state, params, f=None):
 
     inside = f["phic"] < 0
     J = f["J"]
-    psi = _strain_energy(params.laws, f["F"], nd)
-    e = jnp.sum(jnp.where(f["valid"], f["ws_c"] * psi / J, 0.0), axis=space) * dA
     return dict(
         area=area,
         centroid=jnp.stack(cen, axis=-1),
         velocity=jnp.stack(vel, axis=-1),
         J_min=jnp.min(jnp.where(inside, J, jnp.inf), axis=space),
         J_max=jnp.max(jnp.where(inside, J, -jnp.inf), axis=space),
-        elastic_energy=e,
+        elastic_energy=f["elastic_energy"],
     )
 
 
@@ -206,18 +262,14 @@ def rows(model, numbers) -> SolidRows:
     return SolidRows(cols)
 
 
-def _strain_energy(laws, F, nd: int):
-    """Every solid's strain-energy density ``psi(F)`` (S, *corners) from ``F`` (S, *corners,
-    d, d): ``law.psi`` over the corners (``vmap`` over each axis, as ``Model.diagnostics``
-    takes it on the grid), and over the solids stacked into one pytree where they share a
-    law class (one traced code path whatever their number), one by one otherwise."""
-    def one(law, Fk):
-        fn = law.psi
-        for _ in range(nd):
-            fn = jax.vmap(fn)
-        return fn(Fk)
-
-    return map_laws(one, laws, F)
+def _psi(law, F, nd: int):
+    """The strain-energy density ``psi(F)`` over a window's corners (``F`` (*corners, d,
+    d)): ``law.psi`` with one ``vmap`` per axis, as ``Model.diagnostics`` takes it on the
+    grid."""
+    fn = law.psi
+    for _ in range(nd):
+        fn = jax.vmap(fn)
+    return fn(F)
 
 
 __all__ = ["applies", "fields", "rows", "solid_numbers"]
