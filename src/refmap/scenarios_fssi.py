@@ -244,14 +244,17 @@ def suspension(n: int = 128, count: int = 100) -> Case:
     # (closest pair 0.06 apart, 0.23 from the walls),
     # densities 1.5 and 0.6 in the fluid of ``settle`` (lambda_f = 5, g = 0.5: mild
     # stratification, see there).  At the default 128^2 a disc is 8 cells across (19 at
-    # 300^2, the peer codes' size).  The cost is the point of this case: every solid keeps
-    # its reference map and level set on the whole grid today, so a step costs about a
-    # one-solid step per disc (issue 14, docs/benchmarks.md).
+    # 300^2, the peer codes' size).  Each disc keeps its reference map and level set in a
+    # window that follows it (Numerics.solid_storage = "window", docs/design_windows.md):
+    # at 128^2 a step takes 0.65 of the time with every disc on the whole grid, at 300^2
+    # 0.40 (docs/fssi.md).  At 48^2 and below a window would hold more than half the grid,
+    # and the discs are kept on the grid.
     solids = tuple(
         Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"disc{k} (rho={rho:g})")
         for k, (c, r, rho) in enumerate(suspension_discs(count))
     )
-    return _settling_box("suspension", n, solids, t_end=10.0, frames=50)
+    case = _settling_box("suspension", n, solids, t_end=10.0, frames=50)
+    return case.replace(numerics=dataclasses.replace(case.numerics, solid_storage="window"))
 
 
 #: ``dense_suspension``: discs at the default grid (1024^2), and the grid size they scale with
