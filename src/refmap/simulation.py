@@ -85,7 +85,7 @@ def release_memory() -> None:
     elsewhere).  XLA's compilations and each frame's outputs free gigabytes that glibc
     keeps mapped: a thousand discs at 1024^2 held 3 GB between frames and peaked at 4.5 GB
     during a frame's outputs, against 1.7 and 3.4 GB with the pages handed back after each
-    frame (docs/benchmarks.md, "A thousand discs")."""
+    frame's steps and after its outputs (docs/benchmarks.md, "A thousand discs")."""
     global _libc
     if _libc is None:
         try:
@@ -316,6 +316,7 @@ class Simulation:
                 new, info = self._advance(state, self.params, float(tf),
                                           speed_limit=self._speed_limit)
                 info = jax.device_get(info)
+                release_memory()  # the steps' temporaries (and a first compile's), before the outputs'
                 steps = int(info["steps"])
                 total_steps += steps
                 if not bool(info["ok"]):
