@@ -57,7 +57,7 @@ from refmap.scenarios_fssi import _law, suspension, suspension_discs
 layout, n, count, window, steps, reps = sys.argv[1:7]
 n, count, window, steps, reps = int(n), int(count), int(window), int(steps), int(reps)
 case = suspension(n, count=count)
-case = case.replace(numerics=replace(case.numerics,
+case = case.replace(numerics=replace(case.numerics, solid_storage="grid",  # the layouts compared
                                      fixed_smooth_sweeps=case.numerics.smooth_max_sweeps))
 discs = suspension_discs(count)
 h = case.grid.dx

@@ -44,7 +44,7 @@ def _cpu_best(f, reps):
 def measure(n: int, count: int, mode: str, steps: int, reps: int, sweeps: int):
     case = suspension(n, count)
     num = dataclasses.replace(case.numerics, band_sweeps="grid" if mode == "grid" else "band",
-                              fixed_smooth_sweeps=sweeps)
+                              fixed_smooth_sweeps=sweeps, solid_storage="grid")
     model, params = case.replace(numerics=num).build()
     if mode == "sweeps-only":
         model.solid_tiles = None

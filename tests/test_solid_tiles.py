@@ -18,7 +18,14 @@ from refmap.grid import Grid
 from refmap.materials import NeoHookean
 from refmap.model import Solid
 from refmap.scenarios import get_case
-from refmap.scenarios_fssi import suspension
+from refmap.scenarios_fssi import suspension as _suspension
+
+
+def suspension(n, count):
+    """The ``suspension`` discs on the whole grid (``solid_storage = "grid"``; the scenario
+    stores them in windows by default): the layout whose tiles these tests check."""
+    case = _suspension(n, count)
+    return case.replace(numerics=dataclasses.replace(case.numerics, solid_storage="grid"))
 
 MIXED = ("sxx", "sxy", "syy", "rho", "wf_c", "wf_n")
 

@@ -236,7 +236,9 @@ def test_band_work_in_batches_of_solids_is_bitwise_the_same(name, monkeypatch):
     """Solids stored in windows have their band work (advection, pinning, re-distancing,
     extrapolation, smoothing, moving the windows) done in batches of at most
     ``BAND_SOLID_BATCH`` solids (``lax.map``), each batch's shape parameters passed with
-    it and the last batch padded with copies of the last solid: 10 steps in batches of 2
+    it and the last batch padded with copies of the last solid, and their stresses mixed
+    batch after batch into the same padded sums (the padding's part multiplied by 0):
+    10 steps in batches of 2
     (3 or 4 discs: the last batch padded, or not) equal the steps with every solid in one
     batch bit for bit, across a periodic corner and next to walls; a model whose solids are
     of two shape kinds is not batched (its ``_shape_table`` is None)."""
@@ -254,6 +256,13 @@ def test_band_work_in_batches_of_solids_is_bitwise_the_same(name, monkeypatch):
         return real(self, xi, *rest)
 
     monkeypatch.setattr(Model, "_band_on_windows_batch", spy)
+    mixed, real_mix = [], solid_tiles.window_contributions
+
+    def spy_mix(phiw, *rest):
+        mixed.append(phiw.shape[0])  # the solids whose stresses are mixed together
+        return real_mix(phiw, *rest)
+
+    monkeypatch.setattr(solid_tiles, "window_contributions", spy_mix)
     for batch in (64, 2):
         monkeypatch.setattr(model_module, "BAND_SOLID_BATCH", batch)
         m = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, solid_storage="window"))
@@ -263,6 +272,7 @@ def test_band_work_in_batches_of_solids_is_bitwise_the_same(name, monkeypatch):
         out.append(jax.jit(lambda s, m=m, p=params: m.run_steps(s, p, 10))(s))
     a, b = out
     assert set(traced) == {len(centers), 2}  # all at once, then batches of 2
+    assert set(mixed) == {len(centers), 2}  # the stresses' mixing too
     for f in ("v", "rho_f", "xi", "phi", "origin"):
         assert np.array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f))), f
     assert float(jnp.max(jnp.abs(a.v))) > 1e-3  # the bodies move

@@ -1411,12 +1411,59 @@ class Model:
         default) with a margin, so nothing is left out."""
         nd = self.ndim
         o = jnp.maximum(state.origin, 0)
-        phiw = jax.vmap(lambda p: windows.ghosted(p, 1, 2, nd))(state.phi)
-        xiw = jax.vmap(lambda x, oo: self._window_maps(x, oo, 1, 2))(state.xi, o)
-        rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=state.rho_f.dtype) for law in params.laws])
-        return solid_tiles.mixed_from_windows(
-            s_f, state.rho_f, phiw, xiw, self.spacing, o, self.state_window, self.bc.periodic,
-            params.laws, rho0, _solid_stresses, self.h, self.numerics, self.grid.shape())
+        S = o.shape[0]
+        m = -(-S // BAND_SOLID_BATCH)
+        laws = self._stacked_laws(params.laws) if m > 1 else None
+        if laws is None:  # all at once
+            phiw = jax.vmap(lambda p: windows.ghosted(p, 1, 2, nd))(state.phi)
+            xiw = jax.vmap(lambda x, oo: self._window_maps(x, oo, 1, 2))(state.xi, o)
+            rho0 = jnp.stack([jnp.asarray(law.rho0, dtype=state.rho_f.dtype) for law in params.laws])
+            return solid_tiles.mixed_from_windows(
+                s_f, state.rho_f, phiw, xiw, self.spacing, o, self.state_window, self.bc.periodic,
+                params.laws, rho0, _solid_stresses, self.h, self.numerics, self.grid.shape())
+
+        # in batches of the solids (as the band work): each batch's contributions added to
+        # the padded sums window after window in the solids' order (windows.add_windows),
+        # so the sums are those of all at once; the last batch is padded with copies of the
+        # last solid whose contributions are multiplied by 0 (adding +-0: the same sums)
+        B = -(-S // m)
+        pad = m * B - S
+        live = jnp.arange(m * B) < S
+
+        def batches(a):
+            if pad:
+                a = jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)], axis=0)
+            return a.reshape((m, B) + a.shape[1:])
+
+        def stress(law, F):  # the stacked laws of one batch (as _solid_stresses' vmap)
+            return jax.vmap(lambda lw, f: lw.stress(f))(law, F), law.rho0
+
+        def one(sums, batch):
+            xi_b, phi_b, o_b, live_b, law_b = batch
+            phiw = jax.vmap(lambda p: windows.ghosted(p, 1, 2, nd))(phi_b)
+            xiw = jax.vmap(lambda x, oo: self._window_maps(x, oo, 1, 2))(xi_b, o_b)
+            rho0 = jnp.asarray(law_b.rho0, dtype=state.rho_f.dtype)
+            parts = solid_tiles.window_contributions(phiw, xiw, law_b, rho0, stress, self.h, self.spacing,
+                                                     self.numerics)
+            if pad:
+                parts = tuple(jnp.where(live_b.reshape((-1,) + (1,) * (v.ndim - 1)), v, 0.0) for v in parts)
+            return tuple(windows.add_windows(a, v, o_b) for a, v in zip(sums, parts, strict=True)), None
+
+        sums = solid_tiles.window_sums(self.state_window, self.bc.periodic, self.grid.shape(), state.rho_f.dtype)
+        sums, _ = lax.scan(one, sums, tuple(batches(a) for a in (state.xi, state.phi, o))
+                           + (live.reshape(m, B), jax.tree_util.tree_map(batches, laws)))
+        return solid_tiles.mix_window_sums(s_f, state.rho_f, sums, self.state_window, self.bc.periodic,
+                                           self.grid.shape())
+
+    def _stacked_laws(self, laws):
+        """The laws stacked into one pytree (S, ...) when they are of one class and pytree
+        structure (the solids' stresses one ``vmap``, as ``materials.map_laws``), else None."""
+        if len({(type(law), jax.tree_util.tree_structure(law)) for law in laws}) != 1:
+            return None
+        try:
+            return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws)
+        except (ValueError, TypeError):
+            return None
 
     def _mixed_on_tiles(self, s_f, rho_f, phip, xip, params, full):
         """The mixed stress components, density and fluid fractions of :meth:`derived`

@@ -315,33 +315,58 @@ def mixed_from_windows(s_f, rho_f, phiw, xiw, spacing, origins, window, periodic
     """:func:`mixed_on_windows` from the windows already cut: ``phiw`` (S, *size) and
     ``xiw`` (S, d, *size), ``size = W + 3`` nodes per axis from ``origin - 1``, the map
     continuous in the window; ``nshape`` the grid's node counts."""
-    nd = len(window)
-    cshape = tuple(n + 1 for n in nshape)
-    phiw = phiw[:, None]  # (S, 1, *size): one "tile" per solid
-    xiw = xiw[:, None]
-    wc, wn = blend_contributions(phiw, rho0, h, numerics)  # (S, 1, C, W + 1, ...)
-    sig, drho = stress_contributions(phiw, xiw, laws, stress_fn, h, spacing, numerics)
-    # corners and nodes origin .. origin + W, summed window after window
-    # (windows.accumulate): a periodic axis wraps at n (corner n is corner 0's copy,
-    # appended below), past a walled edge the values are dropped
+    sums = window_sums(window, periodic, nshape, phiw.dtype)
+    parts = window_contributions(phiw, xiw, laws, rho0, stress_fn, h, spacing, numerics)
+    sums = tuple(windows.add_windows(a, v, origins) for a, v in zip(sums, parts, strict=True))
+    return mix_window_sums(s_f, rho_f, sums, window, periodic, nshape)
 
-    def place(values, shape_out, corner):
-        """Sum (S, 1, C, W + 1, ...) into (C, *shape_out) at each solid's origin."""
-        base = tuple(n if p else m for n, m, p in zip(nshape, shape_out, periodic, strict=True))
-        out = windows.accumulate(jnp.zeros((values.shape[2],) + base, values.dtype), values[:, 0],
-                                 origins, periodic)
-        if corner:
-            for a in range(nd):
-                if periodic[a]:
-                    out = jnp.concatenate([out, lax.slice_in_dim(out, 0, 1, axis=1 + a)], axis=1 + a)
+
+def window_contributions(phiw, xiw, laws, rho0, stress_fn, h, spacing, numerics):
+    """Each window's part of :func:`mix`'s sums (``phiw`` (S, *size), ``xiw`` (S, d, *size)
+    as :func:`mixed_from_windows`): the corner sums ``1 - H`` (S, 1, *C) and the stress
+    components (S, ncomp, *C), the node sums ``((1 - H) rho0, 1 - H)`` (S, 2, *W) and the
+    density change (S, 1, *W), ``C = W + 1``: the order of :func:`window_sums`."""
+    wc, wn = blend_contributions(phiw[:, None], rho0, h, numerics)  # (S, 1, C, W + 1, ...)
+    sig, drho = stress_contributions(phiw[:, None], xiw[:, None], laws, stress_fn, h, spacing, numerics)
+    return wc[:, 0], sig[:, 0], wn[:, 0], drho[:, 0]
+
+
+def window_sums(window, periodic, nshape, dtype):
+    """The padded sums (:func:`refmap.windows.padded_for`) into which
+    :func:`window_contributions` are added: corners ``1 - H`` and the stress components,
+    nodes ``((1 - H) rho0, 1 - H)`` and the density change.  A periodic axis holds n
+    corners (corner n is corner 0's copy, appended by :func:`mix_window_sums`), a walled
+    one n + 1."""
+    nd = len(window)
+    ncomp = nd * (nd + 1) // 2
+    corners = tuple(n if p else n + 1 for n, p in zip(nshape, periodic, strict=True))
+    C = tuple(w + 1 for w in window)
+    return (windows.padded_for(jnp.zeros((1,) + corners, dtype), C),
+            windows.padded_for(jnp.zeros((ncomp,) + corners, dtype), C),
+            windows.padded_for(jnp.zeros((2,) + tuple(nshape), dtype), window),
+            windows.padded_for(jnp.zeros((1,) + tuple(nshape), dtype), window))
+
+
+def mix_window_sums(s_f, rho_f, sums, window, periodic, nshape):
+    """:func:`mix` from the padded sums of all windows (:func:`window_sums`): folded round a
+    periodic axis (:func:`refmap.windows.fold`; corner n, corner 0's copy, appended)."""
+    nd = len(window)
+    corners = tuple(n if p else n + 1 for n, p in zip(nshape, periodic, strict=True))
+    C = tuple(w + 1 for w in window)
+
+    def corner_field(acc):
+        out = windows.fold(acc, corners, C, periodic)
+        for a in range(nd):
+            if periodic[a]:
+                out = jnp.concatenate([out, lax.slice_in_dim(out, 0, 1, axis=1 + a)], axis=1 + a)
         return out
 
-    Tc = place(wc, cshape, True)[0]
-    Bn, Tn = place(wn, nshape, False)
-    A = place(sig, cshape, True)
-    Bn = Bn + place(drho, nshape, False)[0]
+    Tc = corner_field(sums[0])[0]
+    A = corner_field(sums[1])
+    Bn, Tn = windows.fold(sums[2], tuple(nshape), window, periodic)
+    Bn = Bn + windows.fold(sums[3], tuple(nshape), window, periodic)[0]
     return mix(s_f, rho_f, tuple(A), Tc, Bn, Tn)
 
 
 __all__ = ["ERF_ZERO", "Listed", "advect_maps", "blend_contributions", "cutoff", "gather",
-           "cut_map", "cut_windows", "mix", "mixed_from_windows", "mixed_on_windows", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_min"]
+           "cut_map", "cut_windows", "mix", "mix_window_sums", "mixed_from_windows", "mixed_on_windows", "n_tiles", "scatter_add", "stress_contributions", "tile_flags", "window_contributions", "window_min", "window_sums"]

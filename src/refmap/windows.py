@@ -209,38 +209,66 @@ def accumulate(base, values, origins, periodic, op: str = "add"):
     overlap), but an XLA scatter with one index per value costs about ten times more on a
     CPU (100 windows of 60^2 at 300^2: ~10 against ~1 ms)."""
     origins = jnp.asarray(origins).astype(jnp.int32)
-    S, d = origins.shape
+    d = origins.shape[1]
     size = values.shape[-d:]
-    shape = base.shape[-d:]
     lead = base.ndim - d
     if values.shape[1:-d] != base.shape[:lead]:
         raise ValueError(f"windows {values.shape} do not fit a field of shape {base.shape}")
+    acc = add_windows(padded_for(base, size, op), values, origins, op)
+    return fold(acc, base.shape[-d:], size, periodic, op)
+
+
+def _combine(op: str, dtype):
     if op == "add":
-        combine, neutral = jnp.add, 0
-    elif op == "min":
-        combine, neutral = jnp.minimum, (jnp.inf if jnp.issubdtype(base.dtype, jnp.floating)
-                                         else jnp.iinfo(base.dtype).max)
-    else:
-        raise ValueError(f"op must be 'add' or 'min', got {op!r}")
-    padded = jnp.pad(base, [(0, 0)] * lead + [(0, w) for w in size], constant_values=neutral)
+        return jnp.add, 0
+    if op == "min":
+        return jnp.minimum, (jnp.inf if jnp.issubdtype(dtype, jnp.floating) else jnp.iinfo(dtype).max)
+    raise ValueError(f"op must be 'add' or 'min', got {op!r}")
+
+
+def padded_for(base, size, op: str = "add"):
+    """:func:`accumulate`'s accumulator: ``base`` padded by one window's ``size`` at the far
+    side of every grid axis with ``op``'s neutral value.  Windows are added into it by
+    :func:`add_windows` (in as many batches as wanted) and :func:`fold` makes the field."""
+    d = len(size)
+    lead = base.ndim - d
+    neutral = _combine(op, base.dtype)[1]
+    return jnp.pad(base, [(0, 0)] * lead + [(0, w) for w in size], constant_values=neutral)
+
+
+def add_windows(acc, values, origins, op: str = "add"):
+    """The windows ``values`` (S, ..., *size) combined into the padded accumulator ``acc``
+    (:func:`padded_for`) at ``origins`` (S, d), one after the other."""
+    combine = _combine(op, acc.dtype)[0]
+    origins = jnp.asarray(origins).astype(jnp.int32)
+    S, d = origins.shape
+    lead = acc.ndim - d
 
     def body(k, acc):
         start = (jnp.int32(0),) * lead + tuple(origins[k, a] for a in range(d))
         cur = lax.dynamic_slice(acc, start, values.shape[1:])
         return lax.dynamic_update_slice(acc, combine(cur, values[k]), start)
 
-    acc = lax.fori_loop(0, S, body, padded)
+    return lax.fori_loop(0, S, body, acc)
+
+
+def fold(acc, shape, size, periodic, op: str = "add"):
+    """The field of ``shape`` from :func:`accumulate`'s padded accumulator: the part past a
+    periodic edge folded back onto the start of the axis, past a wall dropped."""
+    combine = _combine(op, acc.dtype)[0]
+    d = len(shape)
+    lead = acc.ndim - d
     for a in range(d):
         ax = lead + a
         n, w = shape[a], size[a]
         core = lax.slice_in_dim(acc, 0, n, axis=ax)
         if periodic[a]:  # fold the part past the edge back onto the start, w nodes at most
+            if w > n:
+                raise ValueError(f"a window of {w} nodes on a periodic axis of {n}")
             tail = lax.slice_in_dim(acc, n, n + w, axis=ax)
             m = min(w, n)
             head = combine(lax.slice_in_dim(core, 0, m, axis=ax), lax.slice_in_dim(tail, 0, m, axis=ax))
             core = lax.dynamic_update_slice_in_dim(core, head, 0, axis=ax)
-            if w > n:
-                raise ValueError(f"a window of {w} nodes on a periodic axis of {n}")
         acc = core
     return acc
 
