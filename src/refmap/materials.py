@@ -782,22 +782,31 @@ def map_laws(fn, laws, *per_solid):
     return jnp.stack([fn(law, *(a[k] for a in per_solid)) for k, law in enumerate(laws)])
 
 
-def law_moduli(laws) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``(mu, M, rho0)``, each ``(N,)``: the small-strain moduli (:meth:`HyperelasticLaw.moduli`)
-    and reference densities of the laws ``laws``, in their order.  The laws of one class and
-    one pytree structure are stacked and their moduli taken with one ``vmap``, so that the
-    traced code does not grow with the number of solids (a thousand discs of two densities
-    are one such group, not a thousand differentiations of the stress)."""
-    if not laws:
-        empty = jnp.zeros((0,))
-        return empty, empty, empty
+def law_groups(laws) -> list[tuple[list[int], Any]]:
+    """The laws grouped by class and pytree structure, in the order of each group's first
+    law: ``(members, stacked)`` with ``members`` the indices of the group's laws and
+    ``stacked`` their pytree with every leaf stacked along a new first axis (one ``vmap``
+    over a group is one traced code path whatever the number of solids)."""
     groups: dict[Any, list[int]] = {}
     for k, law in enumerate(laws):
         groups.setdefault((type(law), jax.tree_util.tree_structure(law)), []).append(k)
+    return [(members, jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
+                                             *(laws[k] for k in members)))
+            for members in groups.values()]
+
+
+def law_moduli(laws) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(mu, M, rho0)``, each ``(N,)``: the small-strain moduli (:meth:`HyperelasticLaw.moduli`)
+    and reference densities of the laws ``laws``, in their order.  The laws of one class and
+    one pytree structure are stacked (:func:`law_groups`) and their moduli taken with one
+    ``vmap``, so that the traced code does not grow with the number of solids (a thousand
+    discs of two densities are one such group, not a thousand differentiations of the
+    stress)."""
+    if not laws:
+        empty = jnp.zeros((0,))
+        return empty, empty, empty
     parts, order = [], []
-    for members in groups.values():
-        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
-                                         *(laws[k] for k in members))
+    for members, stacked in law_groups(laws):
         mu, M = jax.vmap(lambda law: law.moduli())(stacked)
         parts.append(jnp.stack([mu, M, jnp.asarray(stacked.rho0, dtype=M.dtype)]))
         order += members

@@ -41,7 +41,7 @@ from jax import lax
 from refmap import blend, extrapolation, geometry, levelset, narrowband, solid_tiles, windows
 from refmap.boundary import AXIS_FACES, Boundary, BoundaryConditions
 from refmap.grid import Grid
-from refmap.materials import law_moduli, map_laws
+from refmap.materials import law_groups, law_moduli, map_laws
 from refmap.operators import (
     SYM_COMPONENTS,
     SYM_PAIRS,
@@ -1457,9 +1457,13 @@ class Model:
 
     def _stacked_laws(self, laws):
         """The laws stacked into one pytree (S, ...) when they are of one class and pytree
-        structure (the solids' stresses one ``vmap``, as ``materials.map_laws``), else None."""
-        if len({(type(law), jax.tree_util.tree_structure(law)) for law in laws}) != 1:
+        structure (:func:`refmap.materials.law_groups`; the solids' stresses one ``vmap``,
+        as ``materials.map_laws``), else None."""
+        try:
+            groups = law_groups(laws)
+        except (ValueError, TypeError):  # leaves that do not stack
             return None
+        return groups[0][1] if len(groups) == 1 else None
         try:
             return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws)
         except (ValueError, TypeError):

@@ -47,6 +47,7 @@ import numpy as np
 from jax import lax
 
 from refmap import blend, windows
+from refmap.materials import law_groups
 from refmap.operators import corner_average, grad_corner
 
 
@@ -141,26 +142,22 @@ def _by_law(fn, laws, *per_solid):
     """``fn(law, *(a[k] for a in per_solid))`` for every solid k (``law`` None when ``laws``
     is), stacked along a new first axis, :data:`SOLID_BATCH` solids at a time
     (``lax.map``): the solids grouped by law class and pytree structure, each group's laws
-    stacked into one pytree (as :func:`refmap.materials.law_moduli`), one traced code path
+    stacked into one pytree (:func:`refmap.materials.law_groups`), one traced code path
     per group whatever the number of solids."""
     S = per_solid[0].shape[0]
     if laws is None:
-        groups = {None: list(range(S))}
+        groups = [(list(range(S)), None)]
     else:
         if len(laws) != S:
             raise ValueError(f"{len(laws)} laws for {S} solids")
-        groups = {}
-        for k, law in enumerate(laws):
-            groups.setdefault((type(law), jax.tree_util.tree_structure(law)), []).append(k)
+        groups = law_groups(laws)
     parts, order = [], []
-    for members in groups.values():
+    for members, stacked in groups:
         whole = len(members) == S
         args = tuple(a if whole else a[np.asarray(members)] for a in per_solid)
-        if laws is None:
+        if stacked is None:
             res = lax.map(lambda xs: fn(None, *xs), args, batch_size=SOLID_BATCH)
         else:
-            stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
-                                             *(laws[k] for k in members))
             res = lax.map(lambda xs: fn(xs[0], *xs[1:]), (stacked,) + args, batch_size=SOLID_BATCH)
         parts.append(res)
         order += members
