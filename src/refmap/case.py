@@ -242,18 +242,19 @@ class Case:
         for s in self.solids:
             law = s.law
             try:
-                key = (type(law), hash(law))
-            except TypeError:  # a law holding arrays (a traced or differentiated case)
-                key = id(law)
-            if key in seen and seen[key][0] == law:
-                waves.append(seen[key][1])
+                waves.append(seen[law])
                 continue
+            except KeyError:
+                pass
+            except TypeError:  # a law holding arrays (a traced or differentiated case)
+                law = None
             try:
-                _, M = law.moduli()
-                wave = math.sqrt(float(M) / float(law.rho0))
+                _, M = s.law.moduli()
+                wave = math.sqrt(float(M) / float(s.law.rho0))
             except (AttributeError, TypeError, ValueError):
                 continue
-            seen[key] = (law, wave)
+            if law is not None:
+                seen[law] = wave
             waves.append(wave)
         if waves:
             out["solid wave speed"] = max(waves)

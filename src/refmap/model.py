@@ -264,6 +264,21 @@ def _stress_keys(components, nd: int) -> dict:
     return out
 
 
+def _solid_batches(S: int, m: int):
+    """``(B, pad, batched)``: ``S`` solids in ``m`` equal batches of ``B = ceil(S / m)``
+    (:data:`BAND_SOLID_BATCH`), the last padded with ``pad`` copies of the last solid;
+    ``batched(a)`` gives a per-solid array ``a`` (S, ...) as (m, B, ...)."""
+    B = -(-S // m)
+    pad = m * B - S
+
+    def batched(a):
+        if pad:
+            a = jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)], axis=0)
+        return a.reshape((m, B) + a.shape[1:])
+
+    return B, pad, batched
+
+
 def _det_adjugate(dxi):
     """Determinant and adjugate (..., d, d) of the matrix A with A[a][b] = ``dxi[a][b]``.
 
@@ -1426,14 +1441,8 @@ class Model:
         # the padded sums window after window in the solids' order (windows.add_windows),
         # so the sums are those of all at once; the last batch is padded with copies of the
         # last solid whose contributions are multiplied by 0 (adding +-0: the same sums)
-        B = -(-S // m)
-        pad = m * B - S
+        B, pad, batches = _solid_batches(S, m)
         live = jnp.arange(m * B) < S
-
-        def batches(a):
-            if pad:
-                a = jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)], axis=0)
-            return a.reshape((m, B) + a.shape[1:])
 
         def stress(law, F):  # the stacked laws of one batch (as _solid_stresses' vmap)
             return jax.vmap(lambda lw, f: lw.stress(f))(law, F), law.rho0
@@ -1464,10 +1473,6 @@ class Model:
         except (ValueError, TypeError):  # leaves that do not stack
             return None
         return groups[0][1] if len(groups) == 1 else None
-        try:
-            return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *laws)
-        except (ValueError, TypeError):
-            return None
 
     def _mixed_on_tiles(self, s_f, rho_f, phip, xip, params, full):
         """The mixed stress components, density and fluid fractions of :meth:`derived`
@@ -1633,14 +1638,7 @@ class Model:
         shapes = self._shape_table() if m > 1 else None
         if shapes is None:  # one batch (or solids of several shape kinds: not batched)
             return self._band_on_windows_batch(state.xi, state.phi, state.origin, None, vel, dt)
-        B = -(-S // m)
-        pad = m * B - S
-
-        def batched(a):
-            if pad:
-                a = jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)], axis=0)
-            return a.reshape((m, B) + a.shape[1:])
-
+        B, _, batched = _solid_batches(S, m)
         table = jnp.asarray(shapes[1])
         out = lax.map(lambda a: self._band_on_windows_batch(*a, vel, dt),
                       tuple(batched(a) for a in (state.xi, state.phi, state.origin, table)))

@@ -266,8 +266,7 @@ def fold(acc, shape, size, periodic, op: str = "add"):
             if w > n:
                 raise ValueError(f"a window of {w} nodes on a periodic axis of {n}")
             tail = lax.slice_in_dim(acc, n, n + w, axis=ax)
-            m = min(w, n)
-            head = combine(lax.slice_in_dim(core, 0, m, axis=ax), lax.slice_in_dim(tail, 0, m, axis=ax))
+            head = combine(lax.slice_in_dim(core, 0, w, axis=ax), tail)
             core = lax.dynamic_update_slice_in_dim(core, head, 0, axis=ax)
         acc = core
     return acc
