@@ -235,12 +235,12 @@ def test_solids_stored_in_windows_step_as_the_whole_grid(name, monkeypatch):
 def test_band_work_in_batches_of_solids_is_bitwise_the_same(name, monkeypatch):
     """Solids stored in windows have their band work (advection, pinning, re-distancing,
     extrapolation, smoothing, moving the windows) done in batches of at most
-    ``BAND_SOLID_BATCH`` solids (``lax.map``), each batch's shape parameters passed with
+    ``model.solid_batch("band")`` solids (``lax.map``), each batch's shape parameters passed with
     it and the last batch padded with copies of the last solid, and their stresses mixed
     batch after batch into the same padded sums (the padding's part multiplied by 0):
-    10 steps in batches of 2
-    (3 or 4 discs: the last batch padded, or not) equal the steps with every solid in one
-    batch bit for bit, across a periodic corner and next to walls; a model whose solids are
+    10 steps in batches of 2 (3 or 4 discs: the last batch padded, or not), and with the
+    band work one solid at a time (the CPU's default), equal the steps with every solid in
+    one batch bit for bit, across a periodic corner and next to walls; a model whose solids are
     of two shape kinds is not batched (its ``_shape_table`` is None)."""
     import dataclasses
 
@@ -263,18 +263,19 @@ def test_band_work_in_batches_of_solids_is_bitwise_the_same(name, monkeypatch):
         return real_mix(phiw, *rest)
 
     monkeypatch.setattr(solid_tiles, "window_contributions", spy_mix)
-    for batch in (64, 2):
-        monkeypatch.setattr(model_module, "BAND_SOLID_BATCH", batch)
+    for band, mix in ((64, 64), (2, 2), (1, 2)):
+        monkeypatch.setattr(model_module, "SOLID_BATCH", {"band": {"other": band}, "mix": {"other": mix}})
         m = Model(base.grid, base.solids, boundary, dataclasses.replace(base.numerics, solid_storage="window"))
         assert m.state_window is not None and m._shape_table() is not None
         params = m.default_params(gravity=gravity)
         s = _perturbed(m, jax.jit(m.initial_state)(params))
         out.append(jax.jit(lambda s, m=m, p=params: m.run_steps(s, p, 10))(s))
-    a, b = out
-    assert set(traced) == {len(centers), 2}  # all at once, then batches of 2
+    a = out[0]
+    assert set(traced) == {len(centers), 2, 1}  # all at once, then batches of 2, then of 1
     assert set(mixed) == {len(centers), 2}  # the stresses' mixing too
-    for f in ("v", "rho_f", "xi", "phi", "origin"):
-        assert np.array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f))), f
+    for b in out[1:]:
+        for f in ("v", "rho_f", "xi", "phi", "origin"):
+            assert np.array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f))), f
     assert float(jnp.max(jnp.abs(a.v))) > 1e-3  # the bodies move
     mixed = base.solids[:-1] + (dataclasses.replace(
         base.solids[-1], shape=Ellipse(center=centers[-1], semi_axes=(0.3, 0.25), angle=0.2)),)

@@ -89,12 +89,28 @@ SOLID_TILE_FRACTION = 0.5
 #: 3D keeps the grid's size (a 4^3 tile with its halo reads 3.4 times its nodes)
 WINDOW_TILE_TARGET = {2: 4, 3: extrapolation.TILE_TARGET[3]}
 
-#: solids whose band work (``Model._band_on_state_windows``) is traced as one batch; more
-#: are worked on in equal batches of at most this many, one after the other: the sweeps'
-#: tile arrays then do not grow with the number of solids, and a batch's stay in the
-#: caches (100 discs at 300^2, 80 sweeps, one core: 321 ms per step in one batch, 282-290
-#: in batches of 8-25; the same values bit for bit)
-BAND_SOLID_BATCH = 16
+#: solids worked on together in the windowed band work (``"band"``:
+#: ``Model._band_on_state_windows``) and stress mixing (``"mix"``:
+#: ``Model._mixed_on_state_windows``), by JAX backend; more are worked on in equal batches
+#: of at most this many, one after the other.  On a CPU the band work goes one solid at a
+#: time: its tile arrays then stay in the core's L1/L2 caches (100 discs at 300^2, 80
+#: sweeps, one core: 230 ms per step one at a time, 279 in batches of 16, 321 all at once;
+#: 1000 discs at 1024^2: 3.23 against 3.60 s; the same values bit for bit;
+#: docs/benchmarks.md).  The mixing keeps batches of 16 there: one at a time is no faster
+#: within the noise (2 %) and changes its sums in the last bit.  A GPU needs many solids at
+#: once to fill it: batches of ``"other"`` there (not measured on a GPU yet), which still
+#: bounds the sweeps' temporaries (1000 discs at 1024^2: about 1 GB all at once).
+SOLID_BATCH = {"band": {"cpu": 1, "other": 1024}, "mix": {"cpu": 16, "other": 1024}}
+
+
+def solid_batch(work: str) -> int:
+    """The number of solids :class:`Model` works on together in its windowed ``work``
+    (``"band"`` or ``"mix"``): the backend's entry of :data:`SOLID_BATCH`."""
+    table = SOLID_BATCH[work]
+    b = table.get(jax.default_backend(), table["other"])
+    if isinstance(b, bool) or not isinstance(b, int) or b < 1:
+        raise ValueError(f"SOLID_BATCH[{work!r}]: the batch size must be an integer >= 1, got {b!r}")
+    return b
 
 #: nodes a solid's window (``Numerics.solid_storage = "window"``) holds beyond its
 #: blend's reach at t = 0 and the placement's margins: room to move and deform
@@ -266,7 +282,7 @@ def _stress_keys(components, nd: int) -> dict:
 
 def _solid_batches(S: int, m: int):
     """``(B, pad, batched)``: ``S`` solids in ``m`` equal batches of ``B = ceil(S / m)``
-    (:data:`BAND_SOLID_BATCH`), the last padded with ``pad`` copies of the last solid;
+    (:func:`solid_batch`), the last padded with ``pad`` copies of the last solid;
     ``batched(a)`` gives a per-solid array ``a`` (S, ...) as (m, B, ...)."""
     B = -(-S // m)
     pad = m * B - S
@@ -1427,7 +1443,7 @@ class Model:
         nd = self.ndim
         o = jnp.maximum(state.origin, 0)
         S = o.shape[0]
-        m = -(-S // BAND_SOLID_BATCH)
+        m = -(-S // solid_batch("mix"))
         laws = self._stacked_laws(params.laws) if m > 1 else None
         if laws is None:  # all at once
             phiw = jax.vmap(lambda p: windows.ghosted(p, 1, 2, nd))(state.phi)
@@ -1628,13 +1644,13 @@ class Model:
         (:meth:`advance` stops there and says so).
 
         Each solid's band work reads only its own window and the grid's velocity, so more
-        than :data:`BAND_SOLID_BATCH` solids of one shape kind are worked on in equal
+        than ``solid_batch("band")`` solids of one shape kind are worked on in equal
         batches of at most that many (``lax.map``; the last batch padded with copies of the
         last solid, dropped after), with the same values bit for bit: the temporaries of
         the sweeps' tiles then do not grow with the number of solids (1000 discs at 1024^2:
         0.99 GB for all at once), and a batch's arrays stay in the caches."""
         S = state.xi.shape[0]
-        m = -(-S // BAND_SOLID_BATCH)
+        m = -(-S // solid_batch("band"))
         shapes = self._shape_table() if m > 1 else None
         if shapes is None:  # one batch (or solids of several shape kinds: not batched)
             return self._band_on_windows_batch(state.xi, state.phi, state.origin, None, vel, dt)
