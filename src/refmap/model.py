@@ -83,11 +83,13 @@ BAND_WINDOW_SLACK = 8
 # node than the full-grid computation; docs/benchmarks.md, "Solids' stress on tiles")
 SOLID_TILE_FRACTION = 0.5
 #: nodes a side of the tiles on which the extension and smoothing sweep a band window
-#: (``Numerics.solid_storage = "window"``): 4 in 2D, where a band of 6 cells round a small
+#: (``Numerics.solid_storage = "window"``): 3 in 2D, where a band of 6 cells round a small
 #: body covers far fewer of them than of the grid's 8-node tiles (100 discs at 300^2, 80
-#: smoothing sweeps: 167 against 239 ms, the same values bit for bit; 2 x 2 tiles 160 ms);
+#: smoothing sweeps, all at once: 167 against 239 ms with 4 x 4 tiles, the same values bit
+#: for bit; whole steps with the band work one solid at a time: 223 ms on 3 x 3 tiles, 226
+#: on 2 x 2, 236 on 4 x 4, 279 on 8 x 8; 16 larger discs: 99 against 102 ms on 4 x 4);
 #: 3D keeps the grid's size (a 4^3 tile with its halo reads 3.4 times its nodes)
-WINDOW_TILE_TARGET = {2: 4, 3: extrapolation.TILE_TARGET[3]}
+WINDOW_TILE_TARGET = {2: 3, 3: extrapolation.TILE_TARGET[3]}
 
 #: solids worked on together in the windowed band work (``"band"``:
 #: ``Model._band_on_state_windows``) and stress mixing (``"mix"``:
@@ -96,11 +98,11 @@ WINDOW_TILE_TARGET = {2: 4, 3: extrapolation.TILE_TARGET[3]}
 #: time: its tile arrays then stay in the core's L1/L2 caches (100 discs at 300^2, 80
 #: sweeps, one core: 230 ms per step one at a time, 279 in batches of 16, 321 all at once;
 #: 1000 discs at 1024^2: 3.23 against 3.60 s; the same values bit for bit;
-#: docs/benchmarks.md).  The mixing keeps batches of 16 there: one at a time is no faster
-#: within the noise (2 %) and changes its sums in the last bit.  A GPU needs many solids at
+#: docs/benchmarks.md).  The mixing goes in batches of 4 there (216 against 224 ms in
+#: batches of 16; one at a time changes its sums in the last bit).  A GPU needs many solids at
 #: once to fill it: batches of ``"other"`` there (not measured on a GPU yet), which still
 #: bounds the sweeps' temporaries (1000 discs at 1024^2: about 1 GB all at once).
-SOLID_BATCH = {"band": {"cpu": 1, "other": 1024}, "mix": {"cpu": 16, "other": 1024}}
+SOLID_BATCH = {"band": {"cpu": 1, "other": 1024}, "mix": {"cpu": 4, "other": 1024}}
 
 
 def solid_batch(work: str) -> int:

@@ -275,8 +275,8 @@ def dense_suspension(n: int = DENSE_N) -> Case:
     # disc keeps its reference map and level set in a window of about 61^2 nodes that
     # follows it (Numerics.solid_storage = "window", docs/design_windows.md): on the
     # whole grid the 1000 discs would need about 1 TB; in windows the run peaks at about
-    # 3.4 GB and a step takes about 3 s on one core (docs/benchmarks.md, "A thousand
-    # discs" and "Band work in batches of solids").  The default end time is short for that cost (~2900 steps to t = 1).
+    # 3.4 GB and a step takes about 2.2 s on one core (docs/benchmarks.md, "A thousand
+    # discs" and "One solid at a time").  The default end time is short for that cost (~2900 steps to t = 1).
     count = max(4, round(DENSE_COUNT * (n / DENSE_N) ** 2))
     solids = tuple(
         Solid(shape=Disc(center=c, radius=r), law=_law(rho), name=f"disc{k} (rho={rho:g})")
