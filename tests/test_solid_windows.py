@@ -472,3 +472,14 @@ def test_case_check_evaluates_each_shape_on_a_box(periodic):
             got = _inside_at_t0(grid, s, Xn, boundary)
             assert want.any()
             np.testing.assert_array_equal(got, want)
+
+
+def test_solid_batch_sizes_are_checked(monkeypatch):
+    """``model.solid_batch`` reads the backend's batch size and refuses a size that is not
+    an integer >= 1, naming the entry and the value."""
+    table = model_module.SOLID_BATCH["band"]
+    assert model_module.solid_batch("band") == table.get(jax.default_backend(), table["other"])
+    for bad in (0, 2.0, True):
+        monkeypatch.setattr(model_module, "SOLID_BATCH", {"band": {"other": bad}, "mix": {"other": 4}})
+        with pytest.raises(ValueError, match=rf"SOLID_BATCH\['band'\]: .* got {bad!r}"):
+            model_module.solid_batch("band")
