@@ -245,15 +245,15 @@ class Case:
                 waves.append(seen[law])
                 continue
             except KeyError:
-                pass
+                cacheable = True
             except TypeError:  # a law holding arrays (a traced or differentiated case)
-                law = None
+                cacheable = False
             try:
-                _, M = s.law.moduli()
-                wave = math.sqrt(float(M) / float(s.law.rho0))
+                _, M = law.moduli()
+                wave = math.sqrt(float(M) / float(law.rho0))
             except (AttributeError, TypeError, ValueError):
                 continue
-            if law is not None:
+            if cacheable:
                 seen[law] = wave
             waves.append(wave)
         if waves:
