@@ -223,6 +223,7 @@ def csm_tag(
     held_density: bool = False,
     compression: str = "centred",
     rho_f: float | None = None,
+    blur_mass: str = "node",
     **_fluid_and_damping,
 ) -> str:
     """File stem of a CSM run: the thesis's blend (erf, 2 h) and compression carry no
@@ -236,6 +237,8 @@ def csm_tag(
         tag += f"_{blend_kernel}{blur_width:g}"
     if compression != "centred":
         tag += f"_{compression}"
+    if blur_mass != "node":
+        tag += f"_mass{blur_mass}"
     return tag + ("_held" if held_density else "")
 
 
@@ -259,12 +262,14 @@ def make_csm(
     blur_width: float = 2.0,
     held_density: bool = False,
     compression: str = "centred",
+    blur_mass: str = "node",
 ):
     """Model, params and settings of CSM1/CSM2 with ``nt`` cells across the flag, blended
     with ``blend_kernel`` of width ``blur_width`` cells (:mod:`refmap.blend`);
     ``held_density`` extends the fluid density into the clamped cylinder
-    (:class:`HeldDensityModel`); ``compression`` is the fluid's (``Numerics.compression``).
-    CSM3 (the transient) has no mass damping (``gamma_factor`` is ignored): only the solid
+    (:class:`HeldDensityModel`); ``compression`` is the fluid's (``Numerics.compression``)
+    and ``blur_mass`` the blur nodes' mass (``Numerics.blur_mass``: ``"corners"`` lets the
+    flag run in the light fluid CSM3 needs).  CSM3 (the transient) has no mass damping (``gamma_factor`` is ignored): only the solid
     viscosity that the explicit step needs, whose damping of the first bending mode is
     ~omega eta_s / E ~ 1e-4 per radian at 4 cells."""
     if rho_f is None:
@@ -302,7 +307,8 @@ def make_csm(
     )
     solid = Solid(shape=BODY, law=svk(mu), anchor=RegionAnchor(CYL), name="flag")
     numerics = Numerics(
-        dt_fixed=dt, blend=blend_kernel, blur_width=blur_width, compression=compression
+        dt_fixed=dt, blend=blend_kernel, blur_width=blur_width, compression=compression,
+        blur_mass=blur_mass,
     )
     cls = HeldDensityModel if held_density else Model
     model = cls(grid, (solid,), Boundary(), numerics, body_forces=(damp,))
@@ -327,6 +333,7 @@ def make_csm(
         bending_factor=stiffening,
         held_density=held_density,
         compression=compression,
+        blur_mass=blur_mass,
         omega1=omega,
         domain=[ax, bx, ay, by],
     )
@@ -1257,6 +1264,12 @@ def main(argv=None):
         action="store_true",
         help="CSM: extend the fluid density into the clamped cylinder (HeldDensityModel)",
     )
+    ap.add_argument(
+        "--blur-mass",
+        choices=["node", "corners"],
+        default="node",
+        help="CSM: the blur nodes' mass (Numerics.blur_mass); corners for light fluids",
+    )
     ap.add_argument("--gamma", type=float, default=None, help="FSI1: flag mass damping (1/s)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     ap.add_argument(
@@ -1300,6 +1313,7 @@ def main(argv=None):
             blur_width=a.blur_width,
             held_density=a.held_density,
             compression=a.compression,
+            blur_mass=a.blur_mass,
         )
     elif a.case in ("cfd1", "cfd2") and a.fluid == "incompressible":
         r = run_cfd(

@@ -91,6 +91,11 @@ SOLID_TILE_FRACTION = 0.5
 #: 3D keeps the grid's size (a 4^3 tile with its halo reads 3.4 times its nodes)
 WINDOW_TILE_TARGET = {2: 3, 3: extrapolation.TILE_TARGET[3]}
 
+#: ``Numerics.blur_mass = "corners"``: a node is given the mass of its most solid corner
+#: where that corner's solid fraction is more than this many times the node's own (the
+#: outer blur, where the node's corners' stress acts on a node of little mass)
+BLUR_MASS_RATIO = 4.0
+
 #: solids worked on together in the windowed band work (``"band"``:
 #: ``Model._band_on_state_windows``) and stress mixing (``"mix"``:
 #: ``Model._mixed_on_state_windows``), by JAX backend; more are worked on in equal batches
@@ -1289,6 +1294,24 @@ class Model:
         return dt, i
 
     # ------------------------------------------------------------------ derived fields
+    def _blur_mass(self, rho, wf_c, wf_n, rho_f, params):
+        """The node mass of the momentum update (``Numerics.blur_mass``): ``rho`` itself
+        (``"node"``), or (``"corners"``) at least ``rho_f + w_c (rho_s - rho_f)`` where
+        ``w_c``, the largest solid fraction ``1 - wf_c`` among the node's ``2^d`` corners,
+        is more than :data:`BLUR_MASS_RATIO` times the node's own ``1 - wf_n``; ``rho_s``
+        the largest solid reference density."""
+        if self.numerics.blur_mass == "node" or not self.n_solids:
+            return rho
+        nd = self.ndim
+        ws_c = 1.0 - wf_c
+        w_max = None
+        for offset in itertools.product((0, 1), repeat=nd):
+            corner = ws_c[tuple(slice(o, ws_c.shape[a] - 1 + o) for a, o in enumerate(offset))]
+            w_max = corner if w_max is None else jnp.maximum(w_max, corner)
+        rho_s = jnp.max(jnp.stack([jnp.asarray(law.rho0, dtype=rho.dtype) for law in params.laws]))
+        lifted = jnp.maximum(rho, rho_f + w_max * (rho_s - rho_f))
+        return jnp.where(BLUR_MASS_RATIO * (1.0 - wf_n) < w_max, lifted, rho)
+
     def derived(self, state: State, params: Params, viscous: bool = True):
         """Corner and node fields recomputed from the state (stresses, weights, density).
 
@@ -1334,6 +1357,7 @@ class Model:
             # fields from the windows themselves, no solid's field on the whole grid (the
             # per-solid fields of diagnostics and output come from on_grid(state))
             s_mix, rho, wf_c, wf_n = self._mixed_on_state_windows(s_f, state, params)
+            rho = self._blur_mass(rho, wf_c, wf_n, state.rho_f, params)
             out.update(_stress_keys(s_mix, nd), rho=rho, wf_c=wf_c, wf_n=wf_n,
                        band_windows=(state.origin, jnp.all(state.origin >= 0, axis=1)))
             return out
@@ -1357,6 +1381,7 @@ class Model:
             s_mix, rho, wf_c, wf_n = self._mixed_on_tiles(
                 s_f, state.rho_f, phip2, xip2, params,
                 lambda: self._solids_full(s_f, state.rho_f, state.phi, phip2[core], xip2[core], params)["mixed"])
+        rho = self._blur_mass(rho, wf_c, wf_n, state.rho_f, params)
         out.update(_stress_keys(s_mix, nd), rho=rho, wf_c=wf_c, wf_n=wf_n, **f)
         if self.solid_band_window is not None:
             # where each solid's band window goes this step: the band work and the contact
