@@ -5,7 +5,8 @@ a corner next to them holds some; their corners' stress then acts on a node of a
 fluid's density.  For a solid 1000 times denser than the fluid that node's wave speed is
 far above the solid's, and the explicit step (sized by the solid's wave speed) lets a
 velocity grow there from round-off (docs/method.md, "Heavy solids in a light fluid").
-``blur_mass = "corners"`` gives such a node at least the mass of its most solid corner.
+``blur_mass = "corners"`` gives such a node (one whose most solid corner holds over
+``BLUR_MASS_RATIO`` = 4 times its own solid fraction) at least that corner's mass.
 """
 
 import jax
