@@ -268,9 +268,10 @@ def make_csm(
     with ``blend_kernel`` of width ``blur_width`` cells (:mod:`refmap.blend`);
     ``held_density`` extends the fluid density into the clamped cylinder
     (:class:`HeldDensityModel`); ``compression`` is the fluid's (``Numerics.compression``)
-    and ``blur_mass`` the blur nodes' mass (``Numerics.blur_mass``: ``"corners"`` lets the
-    flag run in the light fluid CSM3 needs).  CSM3 (the transient) has no mass damping (``gamma_factor`` is ignored): only the solid
-    viscosity that the explicit step needs, whose damping of the first bending mode is
+    and ``blur_mass`` the blur nodes' mass (``Numerics.blur_mass``: with ``"corners"`` the
+    flag survives the start in the light fluid CSM3 needs, though not yet its first
+    turning point).  CSM3 (the transient) has no mass damping (``gamma_factor`` is
+    ignored): only the solid viscosity that the explicit step needs, whose damping of the first bending mode is
     ~omega eta_s / E ~ 1e-4 per radian at 4 cells."""
     if rho_f is None:
         rho_f = csm_fluid_density(case)
